@@ -1,0 +1,50 @@
+"""What every stage entry point shares: Hydra wiring, quiet logging, and per-stage wall time."""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from scanloc.io import write_json
+
+TIMING_DIR = Path("reports/timing")
+
+
+def conf_dir() -> str:
+    """The Hydra config tree: `conf/` of the working directory (the repository root under DVC).
+
+    SCANLOC_CONF overrides it, e.g. to run a stage from another folder.
+    """
+    return str(Path(os.environ.get("SCANLOC_CONF", Path.cwd() / "conf")).resolve())
+
+
+def stage_main(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:
+    """`hydra.main` over the repository's conf/ with `config_name` as the primary config."""
+
+    def decorate(task: Callable[[DictConfig], Any]) -> Callable[[], Any]:
+        return hydra.main(version_base=None, config_path=conf_dir(), config_name=config_name)(task)
+
+    return decorate
+
+
+def to_dict(node: DictConfig) -> dict[str, Any]:
+    """A resolved plain-dict copy of a config node, for library code and JSON outputs."""
+    return OmegaConf.to_container(node, resolve=True)  # type: ignore[return-value]
+
+
+@contextmanager
+def timed_stage(name: str) -> Iterator[None]:
+    """Record the stage's wall time in reports/timing/<name>.json (a cache-less DVC metric)."""
+    start = time.perf_counter()
+    yield
+    write_json(
+        TIMING_DIR / f"{name}.json",
+        {"stage": name, "wall_s": round(time.perf_counter() - start, 3)},
+    )

@@ -1,0 +1,54 @@
+"""`report` stage: the HTML and Markdown report, built only from the pipeline's artifacts."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import yaml
+from omegaconf import DictConfig
+
+from scanloc.report.build import build_report
+from scanloc.stages._app import stage_main, timed_stage
+
+
+def git_commit() -> str | None:
+    """The checked-out commit (with '+dirty' for local edits), or None outside a git checkout."""
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return commit + ("+dirty" if dirty else "")
+
+
+def profile_params(profile: str) -> dict[str, Any]:
+    """params.yaml and what the profile's conf/scale files change: the run's knobs."""
+    params: dict[str, Any] = {"params.yaml": yaml.safe_load(Path("params.yaml").read_text())}
+    for path in sorted(Path("conf/scale", profile).glob("*.yaml")):
+        params[str(path)] = yaml.safe_load(path.read_text())
+    return params
+
+
+@stage_main("report")
+def main(cfg: DictConfig) -> None:
+    with timed_stage("report"):
+        profile = str(cfg.profile.name)
+        context = {
+            "profile": profile,
+            "params": profile_params(profile),
+            "git_commit": git_commit(),
+        }
+        build_report(Path("."), Path(cfg.out_dir), context)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,94 @@
+"""`train` stage: train one Table 1 row, or the ensemble's further members, on a scan dataset.
+
+Under DVC each row writes to models/<row>/. In a Hydra multirun (a sweep outside DVC) every job
+writes to its own Hydra job folder instead, so sweeps never overwrite the pipeline's models.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import DictConfig
+
+from scanloc.io import write_json
+from scanloc.models.stacked_ensemble import fit_stacked
+from scanloc.models.training import fit
+from scanloc.stages._app import stage_main, timed_stage, to_dict
+
+
+def output_paths(cfg: DictConfig) -> tuple[Path, Path]:
+    """(model folder, metrics file): the configured ones, or inside the job folder of a multirun."""
+    hydra_cfg = HydraConfig.get()
+    if hydra_cfg.mode == RunMode.MULTIRUN:
+        job_dir = Path(hydra_cfg.runtime.output_dir)
+        return job_dir / "model", job_dir / "metrics.json"
+    return Path(cfg.out_dir), Path(cfg.metrics_path)
+
+
+def run_config(cfg: DictConfig) -> dict[str, Any]:
+    """What the report shows as "Table 1 as run" (deterministic: no times, no paths)."""
+    exp = cfg.experiment
+    return {
+        "experiment": exp.name,
+        "profile": cfg.profile.name,
+        "model": str(cfg.model.net._target_).rsplit(".", 1)[-1],
+        "dataset": exp.dataset,
+        "samples": int(exp.samples),
+        "epochs": int(exp.epochs),
+        "batch_size": int(exp.batch_size),
+        "lr": float(cfg.model.lr),
+        "lr_decay": float(cfg.model.lr_decay),
+        "dropout": float(cfg.model.net.get("dropout", 0.0)),
+        "seed": int(exp.seed),
+        "members": int(exp.get("members", 1)),
+    }
+
+
+def train(cfg: DictConfig) -> dict[str, Any]:
+    """Train what `cfg.experiment` describes and return its metrics."""
+    exp = cfg.experiment
+    out_dir, metrics_path = output_paths(cfg)
+    common = {
+        "model_cfg": to_dict(cfg.model.net),
+        "dataset_dir": Path(cfg.dataset_dir),
+        "epochs": int(exp.epochs),
+        "batch_size": int(exp.batch_size),
+        "lr": float(cfg.model.lr),
+        "lr_decay": float(cfg.model.lr_decay),
+        "max_samples": int(exp.samples),
+    }
+    members = int(exp.get("members", 1))
+    if members > 1:
+        # Member 0 is the Table 1 cnn1d_200k model itself; train members 1..members-1 together.
+        seeds = [int(exp.seed) + k for k in range(1, members)]
+        out_dirs = [out_dir / f"member_{k}" for k in range(1, members)]
+        results = fit_stacked(
+            out_dirs=out_dirs, seeds=seeds, trainer_cfg=to_dict(cfg.trainer), **common
+        )
+        metrics = {f"member_{k}": r for k, r in zip(range(1, members), results, strict=True)}
+    else:
+        metrics = fit(
+            out_dir=out_dir,
+            seed=int(exp.seed),
+            trainer_cfg=to_dict(cfg.trainer),
+            checkpoint_dir=Path(cfg.checkpoint_dir),
+            **common,
+        )
+    write_json(out_dir / "config.json", run_config(cfg))
+    write_json(metrics_path, metrics)
+    return metrics
+
+
+@stage_main("train")
+def main(cfg: DictConfig) -> float:
+    with timed_stage(f"train_{cfg.experiment.name}"):
+        metrics = train(cfg)
+    # The value a Hydra sweeper would minimise.
+    return float(metrics.get("val_mae", float("nan")))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""`transfer` stage (paper §4.3, Fig. 9): the 1D CNN learns map 2 from random weights
+(init=scratch) or from the weights it learnt on map 1 (init=pretrained); same data, epochs, seed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from scanloc.io import write_json
+from scanloc.models.training import fit
+from scanloc.stages._app import stage_main, timed_stage, to_dict
+
+INITS = ("scratch", "pretrained")
+
+
+@stage_main("transfer")
+def main(cfg: DictConfig) -> None:
+    if cfg.init not in INITS:
+        raise ValueError(f"conf/transfer.yaml: init must be one of {INITS}, got {cfg.init!r}")
+    run = cfg.transfer
+    out_dir = Path(cfg.out_dir)
+    with timed_stage(f"transfer_{cfg.init}"):
+        metrics = fit(
+            model_cfg=to_dict(cfg.model.net),
+            dataset_dir=Path(cfg.dataset_dir),
+            out_dir=out_dir,
+            epochs=int(run.epochs),
+            batch_size=int(run.batch_size),
+            lr=float(cfg.model.lr),
+            lr_decay=float(cfg.model.lr_decay),
+            seed=int(run.seed),
+            max_samples=int(run.samples),
+            trainer_cfg=to_dict(cfg.trainer),
+            init_from=Path(cfg.pretrained_model) if cfg.init == "pretrained" else None,
+            checkpoint_dir=Path(cfg.checkpoint_dir),
+        )
+        write_json(
+            out_dir / "config.json",
+            {
+                "experiment": f"transfer_{cfg.init}",
+                "profile": cfg.profile.name,
+                "init": cfg.init,
+                "init_from": cfg.pretrained_model if cfg.init == "pretrained" else None,
+                "dataset": run.dataset,
+                "samples": int(run.samples),
+                "epochs": int(run.epochs),
+                "batch_size": int(run.batch_size),
+                "lr": float(cfg.model.lr),
+                "lr_decay": float(cfg.model.lr_decay),
+                "dropout": float(cfg.model.net.get("dropout", 0.0)),
+                "seed": int(run.seed),
+            },
+        )
+        write_json(Path(cfg.metrics_path), metrics)
+
+
+if __name__ == "__main__":
+    main()
