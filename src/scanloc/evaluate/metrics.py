@@ -1,0 +1,144 @@
+"""Error metrics of a localizer's per-step estimates against the true trajectory.
+
+Table 2 of the paper: "the mean as well as the standard deviation of the pose estimation error
+(x, y, θ)", the θ error being "the difference between the sinus values of the true orientation
+and the predicted one". The means here are of ABSOLUTE errors (|x_est − x_true|,
+|sin θ_true − sin θ_est|), i.e. error magnitudes, and the standard deviations are those of the
+same absolute errors (population, divisor n). The sine difference is the paper's; note that it
+cannot tell θ from π − θ, so the wrapped heading error in degrees is reported beside it.
+
+Modern metrics: position error statistics, wrapped heading error, shares of steps within 0.1 /
+0.25 / 0.5 m, gross failures over 1 m and, for localizers with a covariance, the calibration of
+the 2×2 position covariance: the share of steps whose truth lies inside the 1σ / 2σ ellipse
+(squared Mahalanobis distance ≤ 1 / ≤ 4; a calibrated Gaussian gives 39.3 % / 86.5 %).
+
+Steps whose estimate is not finite count as missing: every statistic is taken over the valid
+steps and `frac_missing` says how many were dropped.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from scanloc.localize.cnn_localizer import wrap_angle
+
+POSE_COLUMNS = ("x", "y", "theta")
+POSITION_COV_COLUMNS = ("cov_xx", "cov_xy", "cov_yy")
+WITHIN_THRESHOLDS_M = {"frac_within_0_1m": 0.1, "frac_within_0_25m": 0.25, "frac_within_0_5m": 0.5}
+GROSS_FAILURE_M = 1.0
+CALIBRATION_EXPECTED = {
+    "calib_within_1sigma": 1.0 - np.exp(-0.5),
+    "calib_within_2sigma": 1.0 - np.exp(-2.0),
+}
+
+
+def read_estimates(path: Path) -> pd.DataFrame:
+    """Read a per-step estimate table (CSV) and check it has the pose columns."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: estimate table not found")
+    try:
+        table = pd.read_csv(path)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a readable CSV estimate table: {exc}") from exc
+    check_table(table, source=str(path))
+    return table
+
+
+def check_table(table: pd.DataFrame, source: str, steps: int | None = None) -> None:
+    """Raise a ValueError naming `source` on missing pose columns or a length unlike the truth's."""
+    missing = [c for c in POSE_COLUMNS if c not in table.columns]
+    if missing:
+        raise ValueError(f"{source}: missing column(s) {missing}; expected at least {POSE_COLUMNS}")
+    if steps is not None and len(table) != steps:
+        raise ValueError(f"{source}: {len(table)} rows, but the true trajectory has {steps} steps")
+    if steps is not None and "step" in table.columns:
+        if not np.array_equal(table["step"].to_numpy(), np.arange(steps)):
+            raise ValueError(f"{source}: column 'step' must be 0, 1, ..., {steps - 1}")
+
+
+def _stats(values: np.ndarray, prefix: str) -> dict[str, float]:
+    if values.size == 0:
+        return {f"{prefix}_mean": np.nan, f"{prefix}_std": np.nan}
+    return {f"{prefix}_mean": float(values.mean()), f"{prefix}_std": float(values.std())}
+
+
+def _share(mask: np.ndarray) -> float:
+    return float(mask.mean()) if mask.size else np.nan
+
+
+def mahalanobis_sq(error: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distance of 2D errors (n, 2) under 2×2 covariances (n, 2, 2).
+
+    A covariance that is not positive definite gives +inf (the truth lies outside any ellipse
+    of a degenerate estimate), unless the error is exactly zero.
+    """
+    sxx, sxy, syy = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    det = sxx * syy - sxy * sxy
+    dx, dy = error[:, 0], error[:, 1]
+    quad = syy * dx * dx - 2.0 * sxy * dx * dy + sxx * dy * dy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d2 = np.where((det > 0) & (sxx > 0), quad / det, np.inf)
+    return np.where((dx == 0) & (dy == 0), 0.0, d2)
+
+
+def localization_metrics(
+    truth: np.ndarray,
+    table: pd.DataFrame,
+    time_per_scan_s: float | None = None,
+    source: str = "estimate table",
+) -> dict[str, float]:
+    """Table 2 and the modern metrics of one localizer (see the module docstring).
+
+    Args:
+        truth: (T, 3) true x, y, θ per step.
+        table: per-step estimates with at least x, y, theta; cov_xx, cov_xy, cov_yy if any.
+        time_per_scan_s: measured cost per scan, copied into the result when given.
+        source: file or method name used in error messages.
+    """
+    truth = np.asarray(truth, dtype=np.float64)
+    if truth.ndim != 2 or truth.shape[1] != 3:
+        raise ValueError(f"truth must have shape (T, 3), got {truth.shape}")
+    check_table(table, source, steps=truth.shape[0])
+    est = table[list(POSE_COLUMNS)].to_numpy(dtype=np.float64)
+    valid = np.isfinite(est).all(axis=1) & np.isfinite(truth).all(axis=1)
+    est, true = est[valid], truth[valid]
+
+    dx, dy = est[:, 0] - true[:, 0], est[:, 1] - true[:, 1]
+    pos_err = np.hypot(dx, dy)
+    heading_deg = np.degrees(np.abs(wrap_angle(est[:, 2] - true[:, 2])))
+    out: dict[str, float] = {"n_steps": truth.shape[0], "frac_missing": _share(~valid)}
+    out |= _stats(np.abs(dx), "x_err")
+    out |= _stats(np.abs(dy), "y_err")
+    out |= _stats(np.abs(np.sin(true[:, 2]) - np.sin(est[:, 2])), "theta_sin_err")
+    empty = pos_err.size == 0
+    out["pos_err_mean_m"] = np.nan if empty else float(pos_err.mean())
+    out["pos_err_median_m"] = np.nan if empty else float(np.median(pos_err))
+    out["pos_err_rmse_m"] = np.nan if empty else float(np.sqrt(np.mean(pos_err**2)))
+    out["pos_err_p95_m"] = np.nan if empty else float(np.percentile(pos_err, 95))
+    out["heading_err_mean_deg"] = np.nan if empty else float(heading_deg.mean())
+    out["heading_err_median_deg"] = np.nan if empty else float(np.median(heading_deg))
+    for key, limit in WITHIN_THRESHOLDS_M.items():
+        out[key] = _share(pos_err < limit)
+    out["frac_gross_over_1m"] = _share(pos_err > GROSS_FAILURE_M)
+    out |= _calibration(table, valid, np.stack([dx, dy], axis=1))
+    if time_per_scan_s is not None:
+        out["time_per_scan_s"] = float(time_per_scan_s)
+    return out
+
+
+def _calibration(table: pd.DataFrame, valid: np.ndarray, error: np.ndarray) -> dict[str, float]:
+    """Shares of steps inside the 1σ / 2σ position ellipses; empty if the table has no
+    covariance (a single network) or none of its valid steps has a finite one."""
+    if not all(c in table.columns for c in POSITION_COV_COLUMNS):
+        return {}
+    sxx, sxy, syy = (table[c].to_numpy(dtype=np.float64)[valid] for c in POSITION_COV_COLUMNS)
+    has_cov = np.isfinite(sxx) & np.isfinite(sxy) & np.isfinite(syy)
+    if not has_cov.any():
+        return {}
+    cov = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)[has_cov]
+    d2 = mahalanobis_sq(error[has_cov], cov)
+    return {"calib_within_1sigma": _share(d2 <= 1.0), "calib_within_2sigma": _share(d2 <= 4.0)}

@@ -1,0 +1,787 @@
+"""Build the reproduction report from the pipeline's artifacts: one self-contained HTML page
+(figures embedded as data URIs, inline CSS, a Content-Security-Policy that forbids any request)
+and a Markdown twin whose figures are PNG files under `<out_dir>/figures/`.
+
+Both are rendered from one list of sections made of paragraphs, tables, figures and
+preformatted text, so they always say the same. Everything shown is read from the artifact
+tree under `root` (layout in the module constants below); required inputs that are missing
+raise an error naming the file, optional ones are reported as missing in their section.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import importlib.metadata
+import math
+import os
+import platform
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from scanloc.evaluate.metrics import check_table
+from scanloc.evaluate.table2 import (
+    MODERN_COLUMNS,
+    TABLE2_COLUMNS,
+    TABLE2_NOTE,
+    format_rows,
+    markdown_table,
+    ordered_methods,
+)
+from scanloc.io import atomic_path, read_json
+from scanloc.report import figures
+from scanloc.report.claims import NOT_TESTABLE, Claim, Run, check_claims
+from scanloc.sensor.laser import LaserSpec
+from scanloc.world.map_server import load_map
+from scanloc.world.occupancy_grid import OccupancyGrid
+
+SECTIONS: tuple[tuple[str, str], ...] = (
+    ("maps-and-scans", "Maps and scans"),
+    ("table-1", "Table 1: training parameters"),
+    ("learning-curves", "Learning curves"),
+    ("localization", "Localization"),
+    ("table-2", "Table 2"),
+    ("paper-claims", "Paper claims"),
+    ("provenance", "Provenance"),
+)
+MAPS = {"sparse_obstacles": "map 1 (paper Fig. 6)", "simple_rooms": "map 2 (paper Fig. 8)"}
+MAP1 = "sparse_obstacles"
+ROWS = {"mlp": "MLP", "cnn1d_20k": "1D CNN 20k", "cnn1d_200k": "1D CNN 200k", "cnn2d": "2D CNN"}
+TRANSFER = {"transfer/scratch": "random init", "transfer/pretrained": "pre-trained on map 1"}
+METHODS = ("amcl", "cnn_single", "cnn_ensemble")
+METHOD_NOTES = {
+    "amcl": "Monte Carlo localization (ROS amcl as implemented) from scans and odometry, "
+    "tracking from the first true pose; hypotheses = particles",
+    "amcl_global": "the same amcl without an initial pose (global localization)",
+    "amcl_nav2": "amcl with ROS 2 nav2's defaults (diff-corrected odometry model)",
+    "cnn_single": "one 1D CNN (Table 1 row cnn1d_200k), each scan alone",
+    "cnn_ensemble": "mean of several 1D CNNs (circular mean for θ), each scan alone; "
+    "covariance = the members' spread; hypotheses = members",
+}
+TRAJECTORY = Path("data/trajectories/map1_drive")
+METRICS_DIR = Path("reports/metrics")
+METRICS_JSON = METRICS_DIR / "localization.json"
+LOCALIZE_DIR = Path("reports/localize")
+TIMING_DIR = Path("reports/timing")
+RASTER_SIZE, RASTER_MAX_RANGE = 384, 7.1  # paper eq. 1–4 and the author's code (7.0 + 0.1)
+PACKAGES = ("torch", "lightning", "numpy", "hydra-core", "dvc", "numba", "matplotlib", "pandas")
+
+# Paper Table 1 (None: no dropout).
+PAPER_TABLE1: dict[str, dict[str, float | int | None]] = {
+    "mlp": {
+        "epochs": 2000,
+        "batch_size": 100,
+        "lr": 0.01,
+        "lr_decay": 0.005,
+        "dropout": 0.25,
+        "samples": 20000,
+    },
+    "cnn1d_20k": {
+        "epochs": 5000,
+        "batch_size": 100,
+        "lr": 0.006,
+        "lr_decay": 0.0,
+        "dropout": 0.1,
+        "samples": 20000,
+    },
+    "cnn1d_200k": {
+        "epochs": 400,
+        "batch_size": 400,
+        "lr": 0.006,
+        "lr_decay": 0.0,
+        "dropout": None,
+        "samples": 200000,
+    },
+    "cnn2d": {
+        "epochs": 400,
+        "batch_size": 100,
+        "lr": 0.01,
+        "lr_decay": 0.005,
+        "dropout": 0.1,
+        "samples": 20000,
+    },
+}
+TABLE1_PARAMS = (
+    ("epochs", "Epochs"),
+    ("batch_size", "Batch size"),
+    ("lr", "Learn rate"),
+    ("lr_decay", "LR-decay"),
+    ("dropout", "Dropout"),
+    ("samples", "Samples"),
+)
+CSS = """
+body{font:15px/1.5 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;color:#222;margin:0;
+background:#fafafa}
+main{max-width:1100px;margin:0 auto;padding:1em 1.5em 4em;background:#fff}
+h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:2px solid #ddd;padding-top:.8em}
+nav a{margin-right:1em}table{border-collapse:collapse;margin:.8em 0;font-size:.86em;
+display:block;overflow-x:auto;max-width:100%}
+th,td{border:1px solid #ccc;padding:.25em .5em;text-align:left;vertical-align:top}
+th{background:#f0f0f0}figure{margin:1em 0}img{max-width:100%;height:auto;box-sizing:border-box;
+border:1px solid #eee}figcaption{font-size:.9em;color:#555}
+pre{background:#f6f6f6;padding:.6em;overflow-x:auto;font-size:.82em}
+.v-reproduced td{background:#d4edc9}.v-partly td{background:#fbefc4}
+.v-not td{background:#f5d0d0}.v-untestable td{background:#e6e6e6}
+"""
+CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
+
+
+# ---------------------------------------------------------------- document model
+
+
+@dataclass(frozen=True)
+class Para:
+    text: str
+
+
+@dataclass(frozen=True)
+class Table:
+    header: list[str]
+    rows: list[list[str]]
+    row_classes: list[str] | None = None
+
+
+@dataclass(frozen=True)
+class Figure:
+    file: str  # file name under <out_dir>/figures/
+    caption: str
+
+
+@dataclass(frozen=True)
+class Pre:
+    summary: str
+    text: str
+
+
+@dataclass
+class Section:
+    id: str
+    title: str
+    blocks: list[Para | Table | Figure | Pre] = field(default_factory=list)
+
+
+# ---------------------------------------------------------------- artifact loading
+
+
+def _required(path: Path, what: str) -> Path:
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: missing, required by the report ({what})")
+    return path
+
+
+def metrics_path(name: str) -> Path:
+    """Where the train / transfer stage writes a run's final metrics (a DVC metrics file)."""
+    if name.startswith("transfer/"):
+        return METRICS_DIR / f"transfer_{name.removeprefix('transfer/')}.json"
+    return METRICS_DIR / f"train_{name}.json"
+
+
+def load_run(root: Path, name: str) -> Run | None:
+    """A run's history and config (models/<name>/) and final metrics (`metrics_path`), or None
+    if its model folder does not exist."""
+    folder = root / "models" / name
+    if not folder.is_dir():
+        return None
+    history_path = _required(folder / "history.csv", "per-epoch training history")
+    history = pd.read_csv(history_path)
+    missing = [c for c in ("epoch", "train_mae", "val_mae") if c not in history.columns]
+    if missing:
+        raise ValueError(f"{history_path}: missing column(s) {missing}")
+    metrics = read_json(_required(root / metrics_path(name), "final training metrics"))
+    config = read_json(_required(folder / "config.json", "training parameters as run"))
+    return Run(history, metrics, config)
+
+
+def load_runs(root: Path) -> dict[str, Run]:
+    """The Table 1 rows and the two transfer runs whose model folder exists."""
+    runs = {name: load_run(root, name) for name in (*ROWS, *TRANSFER)}
+    return {name: run for name, run in runs.items() if run is not None}
+
+
+def load_tables(root: Path, steps: int) -> dict[str, pd.DataFrame]:
+    """Every reports/localize/<method>.csv, in report order, checked against the truth length."""
+    paths = {p.stem: p for p in sorted((root / LOCALIZE_DIR).glob("*.csv"))}
+    tables = {}
+    for name in ordered_methods(paths):
+        table = pd.read_csv(paths[name])
+        check_table(table, str(paths[name]), steps)
+        tables[name] = table
+    return tables
+
+
+def find_dataset(root: Path, map_name: str) -> Path | None:
+    """The smallest dataset (then first by name) whose meta.json says it was taken on `map_name`."""
+    found = []
+    for meta_path in sorted((root / "data" / "scans").glob("*/meta.json")):
+        meta = read_json(meta_path)
+        if meta.get("map") == map_name:
+            found.append((int(meta.get("count", 0)), meta_path.parent.name, meta_path.parent))
+    return min(found)[2] if found else None
+
+
+def laser_from_meta(meta: Mapping[str, Any], meta_path: Path) -> LaserSpec:
+    sensor = meta.get("sensor")
+    if not isinstance(sensor, dict):
+        raise ValueError(f"{meta_path}: field 'sensor': expected a mapping, got {sensor!r}")
+    known = LaserSpec.__dataclass_fields__
+    return LaserSpec(**{k: v for k, v in sensor.items() if k in known})
+
+
+def example_scan(dataset: Path) -> tuple[np.ndarray, np.ndarray, int]:
+    """(pose, ranges, index) of the first validation scan (memory-mapped: datasets can be big)."""
+    is_val = np.load(_required(dataset / "is_val.npy", "train/validation split"), mmap_mode="r")
+    index = int(np.argmax(is_val)) if np.any(is_val) else 0
+    poses = np.load(_required(dataset / "poses.npy", "scan poses"), mmap_mode="r")
+    ranges = np.load(_required(dataset / "ranges.npy", "scan ranges"), mmap_mode="r")
+    return np.array(poses[index], dtype=np.float64), np.array(ranges[index], np.float64), index
+
+
+# ---------------------------------------------------------------- formatting helpers
+
+
+def _num(value: Any, digits: int = 4) -> str:
+    if value is None:
+        return "–"
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return str(value)
+    if isinstance(value, int):
+        return f"{value:,}"
+    return "–" if not math.isfinite(value) else f"{value:.{digits}g}"
+
+
+def _scale(ours: Any, paper: Any) -> str:
+    if not isinstance(ours, (int, float)) or not isinstance(paper, (int, float)) or not paper:
+        return "–"
+    return f"×{ours / paper:.3g}"
+
+
+def hardware() -> str:
+    """CPU model and cores (and NVIDIA GPUs, if any) of the machine building the report."""
+    cpu = platform.processor() or platform.machine()
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():
+        names = [
+            ln.split(":", 1)[1].strip()
+            for ln in cpuinfo.read_text().splitlines()
+            if ln.startswith("model name")
+        ]
+        cpu = names[0] if names else cpu
+    gpus = []
+    for info in sorted(Path("/proc/driver/nvidia/gpus").glob("*/information")):
+        models = [
+            ln.split(":", 1)[1].strip()
+            for ln in info.read_text().splitlines()
+            if ln.startswith("Model")
+        ]
+        gpus += models
+    gpu = ", GPU " + "; ".join(gpus) if gpus else ", no GPU"
+    return f"{cpu}, {os.cpu_count()} logical cores{gpu}"
+
+
+def package_versions() -> list[list[str]]:
+    rows = [["python", platform.python_version()]]
+    for name in PACKAGES:
+        try:
+            rows.append([name, importlib.metadata.version(name)])
+        except importlib.metadata.PackageNotFoundError:
+            rows.append([name, "not installed"])
+    return rows
+
+
+# ---------------------------------------------------------------- sections
+
+
+class _Builder:
+    """Collects sections and writes each figure once, remembering its file name."""
+
+    def __init__(self, root: Path, out_dir: Path, context: Mapping[str, Any]) -> None:
+        self.root, self.out_dir, self.context = root, out_dir, context
+        self.figure_dir = out_dir / "figures"
+        self.written: list[str] = []
+
+    def figure(self, name: str, caption: str, draw: Callable[[Path], object]) -> Figure:
+        """Draw a figure into <out_dir>/figures/<name> and return its block."""
+        draw(self.figure_dir / name)
+        self.written.append(name)
+        return Figure(name, caption)
+
+
+def maps_section(b: _Builder) -> tuple[Section, dict[str, OccupancyGrid]]:
+    section = Section(*SECTIONS[0])
+    section.blocks.append(
+        Para(
+            "The two maps, each with one scan of its dataset (the first validation scan) "
+            "drawn as red beams; beams without a return are drawn light to the maximum range. "
+            "For map 1 the same scan is also shown as the 1D CNN sees it (range per beam), "
+            "around the robot, and rasterised as the 2D CNN's input image."
+        )
+    )
+    grids: dict[str, OccupancyGrid] = {}
+    for map_name, label in MAPS.items():
+        yaml_path = b.root / "data" / "maps" / map_name / "map.yaml"
+        if map_name == MAP1:
+            _required(yaml_path, "map 1")
+        if not yaml_path.is_file():
+            rel = yaml_path.relative_to(b.root).as_posix()
+            section.blocks.append(Para(f"{label} ({map_name}): not available ({rel})."))
+            continue
+        grids[map_name] = load_map(yaml_path)
+        section.blocks += _map_views(b, map_name, label, grids[map_name])
+    dataset_rows = []
+    for meta_path in sorted((b.root / "data" / "scans").glob("*/meta.json")):
+        meta = read_json(meta_path)
+        is_val = np.load(_required(meta_path.parent / "is_val.npy", "split"), mmap_mode="r")
+        dataset_rows.append(
+            [
+                meta_path.parent.name,
+                str(meta.get("map", "?")),
+                _num(meta.get("count")),
+                f"{100 * float(np.mean(is_val)):.1f} %",
+                _num(meta.get("seed")),
+            ]
+        )
+    if dataset_rows:
+        section.blocks.append(Para("Scan datasets (poses uniform over the free space, θ uniform)."))
+        section.blocks.append(
+            Table(["dataset", "map", "scans", "validation share", "seed"], dataset_rows)
+        )
+    return section, grids
+
+
+def _map_views(b: _Builder, map_name: str, label: str, grid: OccupancyGrid) -> list:
+    """The map with an example scan, and for map 1 the scan's three other views."""
+    dataset = find_dataset(b.root, map_name)
+    if dataset is None:
+        return [Para(f"{label}: no scan dataset found for {map_name}.")]
+    laser = laser_from_meta(read_json(dataset / "meta.json"), dataset / "meta.json")
+    pose, ranges, index = example_scan(dataset)
+    angles = laser.beam_angles()
+    if ranges.shape != angles.shape:
+        raise ValueError(
+            f"{dataset / 'ranges.npy'}: {ranges.size} beams, meta.json says {angles.size}"
+        )
+    width, height = grid.size_m
+    title = f"{label}: {map_name}, {width:.2f} × {height:.2f} m"
+    blocks = [
+        b.figure(
+            f"map_{map_name}.png",
+            f"{title}; scan {index} of dataset {dataset.name} at x = {pose[0]:.2f} m, "
+            f"y = {pose[1]:.2f} m, θ = {np.degrees(pose[2]):.1f}°.",
+            lambda p: figures.plot_map_scan(grid, pose, ranges, angles, p, title, laser.range_max),
+        )
+    ]
+    if map_name == MAP1:
+        blocks += _scan_views(b, ranges, angles, laser)
+    return blocks
+
+
+def _scan_views(b: _Builder, ranges: np.ndarray, angles: np.ndarray, laser: LaserSpec) -> list:
+    image = figures.rasterize_scan(ranges, angles, RASTER_SIZE, RASTER_MAX_RANGE)
+    return [
+        b.figure(
+            "scan_1d.png",
+            "Paper Fig. 1a / 3: the raw scan, 667 ranges over ±120° "
+            f"(no return = fill value {laser.no_return_value:g} m).",
+            lambda p: figures.plot_scan_ranges(ranges, angles, p, laser.range_max),
+        ),
+        b.figure(
+            "scan_2d.png",
+            "Paper Fig. 1b: the scan's end points around the robot.",
+            lambda p: figures.plot_scan_points(ranges, angles, p, laser.range_max),
+        ),
+        b.figure(
+            "scan_image.png",
+            f"Paper Fig. 5: the scan rasterised by eq. 1–4 "
+            f"(x = sin α·r as row, y = cos α·r as column, {RASTER_SIZE}×{RASTER_SIZE} px, max "
+            f"{RASTER_MAX_RANGE} m, fill-value points included, as in the author's code).",
+            lambda p: figures.plot_scan_image(image, p, RASTER_MAX_RANGE),
+        ),
+    ]
+
+
+def table1_section(b: _Builder, runs: Mapping[str, Run]) -> Section:
+    section = Section(*SECTIONS[1])
+    profile = b.context.get("profile", "?")
+    present = [r for r in ROWS if r in runs]
+    if not present:
+        section.blocks.append(Para("No Table 1 models found under models/."))
+        return section
+    section.blocks.append(
+        Para(
+            f"The paper's Table 1 beside the parameters as run in profile '{profile}' "
+            "(models/<row>/config.json). The profile scales epochs and samples down to fit "
+            "its time budget; the last two rows give the factor."
+        )
+    )
+    header = ["parameter"]
+    for row in present:
+        header += [f"{ROWS[row]} paper", f"{ROWS[row]} ours"]
+    rows = []
+    for key, title in TABLE1_PARAMS:
+        line = [title]
+        for row in present:
+            line += [_num(PAPER_TABLE1[row][key]), _num(runs[row].config.get(key))]
+        rows.append(line)
+    for key, title in (("epochs", "epochs scale"), ("samples", "samples scale")):
+        line = [title]
+        for row in present:
+            line += ["", _scale(runs[row].config.get(key), PAPER_TABLE1[row][key])]
+        rows.append(line)
+    for key in ("dataset", "model"):
+        line = [key]
+        for row in present:
+            line += ["", str(runs[row].config.get(key, "–"))]
+        rows.append(line)
+    section.blocks.append(Table(header, rows))
+    transfer = [t for t in TRANSFER if t in runs]
+    if transfer:
+        section.blocks.append(
+            Para(
+                "Transfer to map 2 (paper §4.3): the same 1D CNN trained on map 2 from random "
+                "weights and from the weights of the map-1 1D CNN (the paper pre-trained "
+                "2000 epochs on 20k samples)."
+            )
+        )
+        keys = ("dataset", "samples", "epochs", "batch_size", "lr", "lr_decay", "dropout")
+        section.blocks.append(
+            Table(
+                ["run", *keys],
+                [[TRANSFER[t]] + [_num(runs[t].config.get(k)) for k in keys] for t in transfer],
+            )
+        )
+    return section
+
+
+def _run_table(runs: Mapping[str, Run], names: Mapping[str, str]) -> Table:
+    header = [
+        "model",
+        "final train MAE",
+        "final val. MAE",
+        "best val. MAE",
+        "val. position error [m]",
+        "val. heading error [°]",
+        "s / epoch",
+        "epochs",
+        "parameters",
+    ]
+    rows = []
+    for name, label in names.items():
+        if name not in runs:
+            continue
+        run = runs[name]
+        last = run.history.iloc[-1].to_dict() if len(run.history) else {}
+        rows.append(
+            [
+                label,
+                _num(run.train_mae),
+                _num(run.val_mae),
+                _num(run.metrics.get("best_val_mae")),
+                _num(last.get("val_pos_err_m")),
+                _num(last.get("val_heading_err_deg")),
+                _num(run.metrics.get("epoch_s"), 3),
+                _num(run.metrics.get("epochs")),
+                _num(run.metrics.get("params")),
+            ]
+        )
+    return Table(header, rows)
+
+
+def curves_section(b: _Builder, runs: Mapping[str, Run]) -> Section:
+    section = Section(*SECTIONS[2])
+    rows = {ROWS[r]: runs[r].history for r in ROWS if r in runs}
+    if rows:
+        section.blocks.append(
+            b.figure(
+                "fig7_learning_curves.png",
+                "Paper Fig. 7: training (a) and validation (b) loss (MAE over x [m], y [m], "
+                "θ [rad]) of the four Table 1 models, log scale.",
+                lambda p: figures.plot_learning_curves(rows, p, "Table 1 models (map 1)"),
+            )
+        )
+        section.blocks.append(_run_table(runs, ROWS))
+    else:
+        section.blocks.append(Para("No Table 1 training histories found under models/."))
+    transfer = {TRANSFER[t]: runs[t].history for t in TRANSFER if t in runs}
+    if transfer:
+        section.blocks.append(
+            b.figure(
+                "fig9_transfer_curves.png",
+                "Paper Fig. 9: training (a) and validation (b) loss of the 1D CNN on map 2, "
+                "from random weights and pre-trained on map 1.",
+                lambda p: figures.plot_learning_curves(transfer, p, "Transfer to map 2"),
+            )
+        )
+        section.blocks.append(_run_table(runs, TRANSFER))
+    else:
+        section.blocks.append(Para("Transfer runs (models/transfer/) not available."))
+    return section
+
+
+def localization_section(
+    b: _Builder, grid: OccupancyGrid, truth: np.ndarray, tables: Mapping[str, pd.DataFrame]
+) -> Section:
+    section = Section(*SECTIONS[3])
+    absent = [m for m in METHODS if m not in tables]
+    section.blocks.append(
+        Para(
+            f"The robot drives {len(truth)} steps through map 1 "
+            f"({TRAJECTORY.as_posix()}). Each localizer estimates every step's pose: amcl from "
+            "the scans and odometry, the CNNs from each step's scan alone."
+        )
+    )
+    if absent:
+        section.blocks.append(
+            Para(f"Not available: {', '.join(absent)} (no reports/localize/<method>.csv).")
+        )
+    if not tables:
+        return section
+    rows = []
+    for name, table in tables.items():
+        valid = table[["x", "y", "theta"]].notna().all(axis=1)
+        hypotheses = table["n_particles"].median() if "n_particles" in table else None
+        rows.append(
+            [
+                name,
+                METHOD_NOTES.get(name, "–"),
+                f"{int(valid.sum())} / {len(table)}",
+                _num(None if hypotheses is None else float(hypotheses), 4),
+            ]
+        )
+    section.blocks.append(
+        Table(["method", "what it is", "steps with an estimate", "median hypotheses"], rows)
+    )
+    section.blocks.append(
+        b.figure(
+            "fig10_trajectories.png",
+            "Paper Fig. 10: position estimates (red) against the true path (blue), one "
+            "panel per localizer.",
+            lambda p: figures.plot_trajectories(grid, truth, tables, p),
+        )
+    )
+    section.blocks.append(
+        b.figure(
+            "errors_over_time.png",
+            "Position and heading error along the trajectory (log scale).",
+            lambda p: figures.plot_errors_over_time(truth, tables, p),
+        )
+    )
+    with_cov = {
+        n: t
+        for n, t in tables.items()
+        if {"cov_xx", "cov_xy", "cov_yy"} <= set(t.columns) and t["cov_xx"].notna().any()
+    }
+    if with_cov:
+        section.blocks.append(
+            b.figure(
+                "uncertainty.png",
+                "Uncertainty: 2σ ellipses of the position covariance "
+                "(ensemble: spread of the members; amcl: particle cloud) along the path; "
+                "a calibrated 2σ ellipse holds the truth 86.5 % of the time.",
+                lambda p: figures.plot_uncertainty(grid, truth, with_cov, p),
+            )
+        )
+    return section
+
+
+def table2_section(metrics: Mapping[str, Mapping[str, Any]]) -> Section:
+    section = Section(*SECTIONS[4])
+    section.blocks.append(
+        Para(f"Paper Table 2 (its numbers were lost; layout as described). {TABLE2_NOTE}")
+    )
+    section.blocks.append(Table(*format_rows(metrics, TABLE2_COLUMNS)))
+    section.blocks.append(
+        Para(
+            "Modern metrics: position error = Euclidean distance; heading error wrapped to "
+            "±180° (unlike the sine difference it tells θ from 180° − θ); shares of steps "
+            "within 0.1 / 0.25 / 0.5 m and gross failures beyond 1 m; calibration = share of "
+            "steps whose true position lies inside the 1σ / 2σ ellipse of the estimate's "
+            "position covariance (a calibrated Gaussian: 39.3 % / 86.5 %; the single CNN has "
+            "no covariance). Time per scan is measured on the machine that ran the stage."
+        )
+    )
+    section.blocks.append(Table(*format_rows(metrics, MODERN_COLUMNS)))
+    return section
+
+
+def _verdict_class(verdict: str) -> str:
+    if verdict == NOT_TESTABLE:
+        return "v-untestable"
+    return {"reproduced": "v-reproduced", "partly reproduced": "v-partly"}.get(verdict, "v-not")
+
+
+def claims_section(claims: list[Claim]) -> Section:
+    section = Section(*SECTIONS[5])
+    section.blocks.append(
+        Para(
+            "Each finding of the paper (Section 4), what the paper reports, what we measured, "
+            "and the verdict by the rule in the last column. Our runs are scaled down by the "
+            "profile (see Table 1), so absolute values are expected to differ; the rules test "
+            "the direction of each finding and, where the paper gives one, its size."
+        )
+    )
+    header = ["#", "paper's claim", "paper", "ours", "verdict", "rule"]
+    rows = [[str(c.number), c.paper, c.paper_figure, c.ours, c.verdict, c.rule] for c in claims]
+    section.blocks.append(Table(header, rows, [_verdict_class(c.verdict) for c in claims]))
+    return section
+
+
+def provenance_section(b: _Builder) -> Section:
+    section = Section(*SECTIONS[6])
+    ctx = b.context
+    commit = ctx.get("git_commit") or "not recorded"
+    section.blocks.append(
+        Para(
+            f"Profile: {ctx.get('profile', '?')}. Git commit: {commit}. Hardware (machine "
+            f'that built this report): {hardware()}. Paper: R. Dietrich, "Deep Learning '
+            'Localization", Oregon State University, 2017.'
+        )
+    )
+    section.blocks.append(Table(["package", "version"], package_versions()))
+    stage_rows = []
+    for path in sorted((b.root / TIMING_DIR).glob("*.json")):
+        doc = read_json(path)
+        stage_rows.append([str(doc.get("stage", path.stem)), _num(doc.get("wall_s"), 4)])
+    if stage_rows:
+        total = sum(
+            float(read_json(p).get("wall_s", 0.0))
+            for p in sorted((b.root / TIMING_DIR).glob("*.json"))
+        )
+        stage_rows.append(["total", _num(total, 4)])
+        section.blocks.append(Table(["stage", "wall time [s]"], stage_rows))
+    else:
+        section.blocks.append(Para("No stage timings found (reports/timing/)."))
+    params = ctx.get("params")
+    if params:
+        text = yaml.safe_dump(params, sort_keys=True, allow_unicode=True, default_flow_style=False)
+        section.blocks.append(Pre("Resolved parameters", text))
+    return section
+
+
+# ---------------------------------------------------------------- rendering
+
+
+def _png_size(data: bytes) -> tuple[int, int]:
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+def _html_block(block: Para | Table | Figure | Pre, figure_dir: Path) -> str:
+    esc = html.escape
+    if isinstance(block, Para):
+        return f"<p>{esc(block.text)}</p>"
+    if isinstance(block, Pre):
+        summary, text = esc(block.summary), esc(block.text)
+        return f"<details><summary>{summary}</summary><pre>{text}</pre></details>"
+    if isinstance(block, Figure):
+        data = (figure_dir / block.file).read_bytes()
+        width, height = _png_size(data)
+        uri = "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+        return (
+            f'<figure><img src="{uri}" alt="{esc(block.caption)}" width="{width}" '
+            f'height="{height}"><figcaption>{esc(block.caption)}</figcaption></figure>'
+        )
+    head = "".join(f"<th>{esc(h)}</th>" for h in block.header)
+    body = []
+    for i, row in enumerate(block.rows):
+        cls = f' class="{block.row_classes[i]}"' if block.row_classes else ""
+        body.append(f"<tr{cls}>" + "".join(f"<td>{esc(c)}</td>" for c in row) + "</tr>")
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def _md_cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def _md_block(block: Para | Table | Figure | Pre) -> str:
+    if isinstance(block, Para):
+        return block.text + "\n"
+    if isinstance(block, Pre):
+        return (
+            f"<details><summary>{block.summary}</summary>\n\n```yaml\n{block.text}```\n</details>\n"
+        )
+    if isinstance(block, Figure):
+        return f"![{_md_cell(block.caption)}](figures/{block.file})\n\n*{block.caption}*\n"
+    rows = [[_md_cell(c) for c in row] for row in block.rows]
+    return markdown_table([_md_cell(h) for h in block.header], rows)
+
+
+TITLE = "scanloc: reproducing “Deep Learning Localization” (Dietrich 2017)"
+
+
+def render_html(sections: list[Section], summary: str, figure_dir: Path) -> str:
+    nav = " ".join(f'<a href="#{s.id}">{html.escape(s.title)}</a>' for s in sections)
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f'<meta http-equiv="Content-Security-Policy" content="{CSP}">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        f"<title>{html.escape(TITLE)}</title><style>{CSS}</style></head>",
+        f"<body><main><h1>{html.escape(TITLE)}</h1><p>{html.escape(summary)}</p><nav>{nav}</nav>",
+    ]
+    for section in sections:
+        parts.append(f'<section><h2 id="{section.id}">{html.escape(section.title)}</h2>')
+        parts += [_html_block(block, figure_dir) for block in section.blocks]
+        parts.append("</section>")
+    parts.append("</main></body></html>")
+    return "\n".join(parts) + "\n"
+
+
+def render_markdown(sections: list[Section], summary: str) -> str:
+    parts = [f"# {TITLE}\n", summary + "\n"]
+    for section in sections:
+        parts.append(f'<h2 id="{section.id}">{section.title}</h2>\n')
+        parts += [_md_block(block) for block in section.blocks]
+    return "\n".join(parts)
+
+
+def _summary(claims: list[Claim], profile: str) -> str:
+    by_verdict: dict[str, list[str]] = {}
+    for claim in claims:
+        by_verdict.setdefault(claim.verdict, []).append(str(claim.number))
+    verdicts = "; ".join(f"{v}: {', '.join(n)}" for v, n in by_verdict.items())
+    return (
+        f"A reproduction of R. Dietrich's 2017 paper: neural networks regress a robot's pose "
+        f"from one laser scan in a known map and are compared with Monte Carlo localization "
+        f"(amcl). Profile '{profile}'. Paper claims (section Paper claims) — {verdicts}."
+    )
+
+
+def build_report(root: Path, out_dir: Path, context: Mapping[str, Any]) -> None:
+    """Write <out_dir>/report.html (self-contained), <out_dir>/report.md and
+    <out_dir>/figures/*.png from the artifacts under `root`.
+
+    context: {"profile": str, "params": dict (resolved config), "git_commit": str | None}.
+    """
+    root, out_dir = Path(root), Path(out_dir)
+    b = _Builder(root, out_dir, context)
+    truth_path = _required(root / TRAJECTORY / "truth.npy", "true trajectory")
+    truth = np.load(truth_path)
+    if truth.ndim != 2 or truth.shape[1] != 3:
+        raise ValueError(f"{truth_path}: expected true poses of shape (T, 3), got {truth.shape}")
+    metrics = read_json(_required(root / METRICS_JSON, "localization metrics from evaluate"))
+    runs = load_runs(root)
+    tables = load_tables(root, len(truth))
+    maps, grids = maps_section(b)
+    claims = check_claims(runs, metrics, hardware())
+    sections = [
+        maps,
+        table1_section(b, runs),
+        curves_section(b, runs),
+        localization_section(b, grids[MAP1], truth, tables),
+        table2_section(metrics),
+        claims_section(claims),
+        provenance_section(b),
+    ]
+    summary = _summary(claims, str(context.get("profile", "?")))
+    for stale in b.figure_dir.glob("*.png"):
+        if stale.name not in b.written:
+            stale.unlink()
+    with atomic_path(out_dir / "report.md") as tmp:
+        tmp.write_text(render_markdown(sections, summary), encoding="utf-8")
+    with atomic_path(out_dir / "report.html") as tmp:
+        tmp.write_text(render_html(sections, summary, b.figure_dir), encoding="utf-8")

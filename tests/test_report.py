@@ -1,0 +1,369 @@
+"""The report: built from a small fabricated artifact tree, checked for structure, offline
+self-containment, determinism, missing artifacts, and rendered in a real headless Chromium."""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import re
+import select
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from scanloc.evaluate.table2 import evaluate_dir
+from scanloc.localize.cnn_localizer import TABLE_COLUMNS
+from scanloc.report.build import SECTIONS, build_report
+from scanloc.world.map_server import save_map
+from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+CONTEXT = {"profile": "smoke", "params": {"profile": "smoke", "seed": 0}, "git_commit": "abc123"}
+SENSOR = {"num_beams": 667, "angle_min": -2.09439510239, "angle_max": 2.09439510239}
+SENSOR |= {"range_min": 0.02, "range_max": 5.6, "no_return_value": 7.0}
+
+
+# ---------------------------------------------------------------- fabricated artifacts
+
+
+def _grid(width: int, height: int, resolution: float, bars: list[tuple[int, int, int, int]]):
+    cells = np.full((height, width), FREE, dtype=np.int8)
+    cells[[0, -1], :] = OCCUPIED
+    cells[:, [0, -1]] = OCCUPIED
+    for c0, r0, c1, r1 in bars:
+        cells[r0:r1, c0:c1] = OCCUPIED
+    return OccupancyGrid(cells, resolution)
+
+
+def _write_json(path: Path, obj) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(obj))
+
+
+def _run(root: Path, name: str, start: float, end: float, samples: int, epoch_s: float):
+    """A training run whose MAE decays from `start` to `end` over 12 epochs."""
+    folder, epochs = root / "models" / name, 12
+    folder.mkdir(parents=True)
+    epoch = np.arange(1, epochs + 1)
+    val = end + (start - end) * np.exp(-epoch / 3)
+    history = pd.DataFrame({"epoch": epoch, "train_mae": val * 0.97, "val_mae": val})
+    history["val_pos_err_m"], history["val_heading_err_deg"] = val * 0.8, val * 20
+    history["lr"] = 0.006
+    history.to_csv(folder / "history.csv", index=False)
+    metrics = {"val_mae": float(val[-1]), "best_val_mae": float(val.min()), "epoch_s": epoch_s}
+    metrics_file = f"transfer_{name[9:]}" if name.startswith("transfer/") else f"train_{name}"
+    metrics |= {"epochs": epochs, "samples": samples}
+    _write_json(root / "reports/metrics" / f"{metrics_file}.json", metrics)
+    config = {"epochs": epochs, "batch_size": 100, "lr": 0.006, "lr_decay": 0.0, "dropout": 0.1}
+    _write_json(folder / "config.json", config | {"samples": samples, "dataset": "map1_small"})
+
+
+def _estimates(truth: np.ndarray, noise: float, cov: bool, members: int, rng) -> pd.DataFrame:
+    est = truth + rng.normal(0.0, [noise, noise, noise / 2], size=truth.shape)
+    table = pd.DataFrame({"step": np.arange(len(truth)), "t": np.arange(len(truth)) * 0.1})
+    table["x"], table["y"], table["theta"] = est[:, 0], est[:, 1], est[:, 2]
+    for name in TABLE_COLUMNS[5:11]:
+        table[name] = np.nan
+    if cov:
+        table["cov_xx"], table["cov_yy"], table["cov_tt"] = noise**2, noise**2, noise**2 / 4
+        table["cov_xy"], table["cov_xt"], table["cov_yt"] = 0.0, 0.0, 0.0
+    table["n_particles"] = members
+    return table[list(TABLE_COLUMNS)]
+
+
+def make_artifacts(root: Path) -> Path:
+    """A complete, tiny artifact tree as the pipeline lays it out under `root`."""
+    rng = np.random.default_rng(0)
+    save_map(
+        _grid(120, 100, 0.05, [(30, 20, 50, 30), (80, 60, 84, 90)]),
+        root / "data/maps/sparse_obstacles/map.yaml",
+    )
+    save_map(_grid(80, 60, 0.1, [(40, 0, 42, 25)]), root / "data/maps/simple_rooms/map.yaml")
+    for name, map_name in (
+        ("map1_small", "sparse_obstacles"),
+        ("map1_large", "sparse_obstacles"),
+        ("map2_small", "simple_rooms"),
+    ):
+        folder = root / "data/scans" / name
+        folder.mkdir(parents=True)
+        ranges = rng.uniform(0.3, 5.0, size=(12, 667)).astype(np.float32)
+        ranges[:, 300:340] = 7.0
+        np.save(folder / "ranges.npy", ranges)
+        np.save(folder / "poses.npy", np.column_stack([rng.uniform(1, 4, (12, 2)), np.zeros(12)]))
+        np.save(folder / "is_val.npy", np.arange(12) >= 10)
+        _write_json(
+            folder / "meta.json",
+            {"name": name, "map": map_name, "count": 12, "seed": 1, "sensor": SENSOR},
+        )
+    for row, (start, end, samples) in {
+        "mlp": (4.0, 2.5, 20000),
+        "cnn1d_20k": (3.0, 0.4, 20000),
+        "cnn1d_200k": (3.0, 0.12, 200000),
+        "cnn2d": (4.0, 1.2, 20000),
+        "transfer/scratch": (4.0, 0.8, 20000),
+        "transfer/pretrained": (2.0, 0.6, 20000),
+    }.items():
+        epoch_s = samples / 4000 * (12 if row == "cnn2d" else 1)
+        _run(root, row, start, end, samples, epoch_s)
+    traj = root / "data/trajectories/map1_drive"
+    traj.mkdir(parents=True)
+    steps = 60
+    phase = np.linspace(0, 2 * np.pi, steps)
+    truth = np.column_stack([3 + 1.5 * np.cos(phase), 2.5 + 1.5 * np.sin(phase), phase + np.pi / 2])
+    truth[:, 2] = np.angle(np.exp(1j * truth[:, 2]))
+    np.save(traj / "truth.npy", truth)
+    np.save(traj / "times.npy", np.arange(steps) * 0.1)
+    loc = root / "reports/localize"
+    loc.mkdir(parents=True)
+    for method, noise, cov, members in (
+        ("amcl", 0.03, True, 500),
+        ("cnn_single", 0.4, False, 1),
+        ("cnn_ensemble", 0.2, True, 7),
+    ):
+        _estimates(truth, noise, cov, members, rng).to_csv(loc / f"{method}.csv", index=False)
+        _write_json(loc / f"{method}_timing.json", {"time_per_scan_s": 0.001 * members})
+    evaluate_dir(
+        traj / "truth.npy",
+        loc,
+        root / "reports/metrics/localization.json",
+        root / "reports/table2.md",
+    )
+    for stage, wall in (("train_mlp", 12.5), ("localize_amcl", 3.25)):
+        _write_json(root / "reports/timing" / f"{stage}.json", {"stage": stage, "wall_s": wall})
+    return root
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> Path:
+    root = make_artifacts(tmp_path_factory.mktemp("artifacts"))
+    build_report(root, root / "reports", CONTEXT)
+    return root
+
+
+# ---------------------------------------------------------------- structure
+
+
+def test_report_has_all_sections_and_embedded_pngs(built: Path) -> None:
+    page = (built / "reports/report.html").read_text(encoding="utf-8")
+    for section_id, title in SECTIONS:
+        assert f'<h2 id="{section_id}">{title}</h2>' in page
+    uris = re.findall(r'<img src="data:image/png;base64,([^"]+)"', page)
+    assert len(uris) >= 6 and len(uris) == page.count("<img")
+    for uri in uris:
+        assert base64.b64decode(uri, validate=True).startswith(PNG_MAGIC)
+    assert len(uris) == len(list((built / "reports/figures").glob("*.png")))
+
+
+def test_report_needs_nothing_from_outside(built: Path) -> None:
+    page = (built / "reports/report.html").read_text(encoding="utf-8")
+    attributes = re.findall(r'(?:src|href|action|srcset)\s*=\s*"([^"]*)"', page, flags=re.I)
+    assert attributes and all(a.startswith(("data:image/png;base64,", "#")) for a in attributes)
+    for forbidden in ("http://", "https://", "<script", "<link", "<iframe", "@import", "url("):
+        assert forbidden not in page.lower()
+    assert "default-src 'none'; img-src data:" in page  # the CSP forbids any request
+
+
+def test_report_content(built: Path) -> None:
+    page = (built / "reports/report.html").read_text(encoding="utf-8")
+    for text in ("1D CNN 200k paper", "×0.0024", "abc123", "train_mlp", "12.5", "reproduced"):
+        assert text in page
+    md = (built / "reports/report.md").read_text(encoding="utf-8")
+    for section_id, title in SECTIONS:
+        assert f'<h2 id="{section_id}">{title}</h2>' in md
+    images = re.findall(r"!\[[^\]]*\]\((figures/[^)]+\.png)\)", md)
+    assert len(images) >= 6 and all((built / "reports" / img).is_file() for img in images)
+    assert "| amcl |" in md and "| cnn_ensemble |" in md
+
+
+def test_report_is_byte_deterministic(built: Path) -> None:
+    first = (built / "reports/report.html").read_bytes()
+    figures = {p.name: p.read_bytes() for p in (built / "reports/figures").glob("*.png")}
+    build_report(built, built / "reports", CONTEXT)
+    assert (built / "reports/report.html").read_bytes() == first
+    assert {p.name: p.read_bytes() for p in (built / "reports/figures").glob("*.png")} == figures
+
+
+def test_missing_optional_artifacts_are_reported(tmp_path: Path) -> None:
+    root = make_artifacts(tmp_path)
+    (root / "reports/localize/cnn_ensemble.csv").unlink()
+    shutil.rmtree(root / "models/transfer")
+    shutil.rmtree(root / "data/maps/simple_rooms")
+    build_report(root, root / "reports", {"profile": "smoke"})
+    page = (root / "reports/report.html").read_text(encoding="utf-8")
+    assert "Not available: cnn_ensemble" in page
+    assert "Transfer runs (models/transfer/) not available." in page
+    assert "simple_rooms): not available (data/maps/simple_rooms/map.yaml)" in page
+    assert "not testable" in page and "missing: transfer/scratch" in page
+    assert str(tmp_path) not in page  # no absolute paths
+
+
+def test_missing_required_artifacts_name_the_file(tmp_path: Path) -> None:
+    root = make_artifacts(tmp_path)
+    (root / "data/trajectories/map1_drive/truth.npy").unlink()
+    with pytest.raises(FileNotFoundError, match=r"truth\.npy"):
+        build_report(root, root / "reports", CONTEXT)
+    root2 = make_artifacts(tmp_path / "second")
+    (root2 / "reports/metrics/train_cnn2d.json").unlink()
+    with pytest.raises(FileNotFoundError, match=r"train_cnn2d\.json"):
+        build_report(root2, root2 / "reports", CONTEXT)
+    pd.read_csv(root2 / "reports/localize/amcl.csv").iloc[:-1].to_csv(
+        root2 / "reports/localize/amcl.csv", index=False
+    )
+    (root2 / "reports/metrics/train_cnn2d.json").write_text("{}")
+    with pytest.raises(ValueError, match=r"amcl\.csv"):
+        build_report(root2, root2 / "reports", CONTEXT)
+
+
+# ---------------------------------------------------------------- real browser
+
+
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        if path := shutil.which(name):
+            return path
+    return None
+
+
+class _DevTools:
+    """A minimal Chrome DevTools Protocol client over --remote-debugging-pipe (fds 3 and 4)."""
+
+    def __init__(self, exe: str, profile_dir: Path) -> None:
+        to_child, self._out = os.pipe()
+        self._in, from_child = os.pipe()
+        flags = [
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--disable-extensions",
+            "--remote-debugging-pipe",
+            f"--user-data-dir={profile_dir}",
+            "about:blank",
+        ]
+        self.proc = subprocess.Popen(
+            # bash, not sh: dash cannot redirect file descriptors above 9.
+            ["bash", "-c", f'exec "$0" "$@" 3<&{to_child} 4>&{from_child}', exe, *flags],
+            pass_fds=(to_child, from_child),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        os.close(to_child)
+        os.close(from_child)
+        self._buffer, self._next_id, self.events = b"", 0, []
+
+    def _message(self, deadline: float) -> dict:
+        while b"\0" not in self._buffer:
+            ready, _, _ = select.select([self._in], [], [], max(0.0, deadline - time.monotonic()))
+            if not ready:
+                raise TimeoutError("no answer from Chromium")
+            chunk = os.read(self._in, 1 << 20)
+            if not chunk:
+                raise EOFError("Chromium closed the DevTools pipe")
+            self._buffer += chunk
+        raw, self._buffer = self._buffer.split(b"\0", 1)
+        return json.loads(raw)
+
+    def call(self, method: str, session: str | None = None, timeout: float = 20.0, **params):
+        self._next_id += 1
+        message = {"id": self._next_id, "method": method, "params": params}
+        if session:
+            message["sessionId"] = session
+        os.write(self._out, json.dumps(message).encode() + b"\0")
+        deadline = time.monotonic() + timeout
+        while True:
+            reply = self._message(deadline)
+            if reply.get("id") == self._next_id:
+                if "error" in reply:
+                    raise RuntimeError(f"{method}: {reply['error']}")
+                return reply["result"]
+            self.events.append(reply)
+
+    def wait_for(self, method: str, timeout: float = 20.0) -> dict:
+        deadline = time.monotonic() + timeout
+        while True:
+            for event in self.events:
+                if event.get("method") == method:
+                    return event
+            self.events.append(self._message(deadline))
+
+    def close(self) -> None:
+        try:
+            self.call("Browser.close", timeout=5.0)
+        except (OSError, EOFError, TimeoutError, RuntimeError):
+            pass
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        os.close(self._in)
+        os.close(self._out)
+
+
+def render_in_chromium(page: Path, profile_dir: Path, screenshot: Path | None = None) -> dict:
+    """Open `page` in headless Chromium at a laptop's window size; report the images' decoded
+    sizes, the URLs the page requested, console/CSP messages and the section ids."""
+    exe = _chromium()
+    assert exe is not None
+    browser = _DevTools(exe, profile_dir)
+    try:
+        target = browser.call("Target.createTarget", url="about:blank")["targetId"]
+        session = browser.call("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
+        for domain in ("Page", "Network", "Log", "Runtime"):
+            browser.call(f"{domain}.enable", session)
+        browser.call(
+            "Emulation.setDeviceMetricsOverride",
+            session,
+            width=1366,
+            height=768,
+            deviceScaleFactor=1,
+            mobile=False,
+        )
+        browser.call("Page.navigate", session, url=page.resolve().as_uri())
+        browser.wait_for("Page.loadEventFired")
+        probe = (
+            "JSON.stringify({images: Array.from(document.images).map(i => [i.complete, "
+            "i.naturalWidth, i.naturalHeight, i.getBoundingClientRect().width]), "
+            "sections: Array.from(document.querySelectorAll('h2')).map(h => h.id), "
+            "scrollWidth: document.documentElement.scrollWidth})"
+        )
+        result = browser.call("Runtime.evaluate", session, expression=probe, returnByValue=True)
+        found = json.loads(result["result"]["value"])
+        if screenshot is not None:
+            shot = browser.call("Page.captureScreenshot", session, format="png")
+            screenshot.write_bytes(base64.b64decode(shot["data"]))
+    finally:
+        browser.close()
+    found["requests"] = [
+        e["params"]["request"]["url"]
+        for e in browser.events
+        if e.get("method") == "Network.requestWillBeSent"
+    ]
+    found["messages"] = [
+        e["params"]["entry"]["text"] for e in browser.events if e.get("method") == "Log.entryAdded"
+    ]
+    return found
+
+
+@pytest.mark.skipif(_chromium() is None, reason="no chromium installed (apt-get install chromium)")
+def test_report_renders_offline_in_chromium(built: Path, tmp_path: Path) -> None:
+    found = render_in_chromium(built / "reports/report.html", tmp_path / "profile")
+    images = found["images"]
+    assert len(images) >= 6
+    assert all(complete and width > 0 and height > 0 for complete, width, height, _ in images)
+    assert all(shown <= 1100 for *_, shown in images)  # scaled to the column, no overflow
+    assert found["scrollWidth"] <= 1366  # no horizontal scrolling on a laptop screen
+    assert found["sections"] == [section_id for section_id, _ in SECTIONS]
+    remote = [u for u in found["requests"] if not u.startswith(("file:", "data:", "about:"))]
+    assert remote == []
+    assert not [m for m in found["messages"] if "Content Security Policy" in m]
