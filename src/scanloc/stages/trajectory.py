@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from omegaconf import DictConfig
 
-from scanloc.localize.trajectory import drive_trajectory, save_trajectory
+from scanloc.localize.trajectory import OdometryNoise, drive_trajectory, save_trajectory
 from scanloc.sensor.simulate import laser_spec_from_config, noise_from_config, simulate_scans
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.world.map_server import load_map
@@ -25,6 +25,7 @@ def main(cfg: DictConfig) -> None:
             clearance=float(run.clearance),
             max_speed=float(run.max_speed),
             max_turn_rate=float(run.max_turn_rate),
+            odometry_noise=OdometryNoise(**to_dict(run.odometry_noise)),
         )
         ranges = simulate_scans(
             grid,

@@ -1,0 +1,238 @@
+"""The amcl particle filter: KLD bound, clusters, convergence, configs and bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from scanloc.localize.amcl import (
+    TABLE_COLUMNS,
+    Amcl,
+    AmclParams,
+    cluster_estimate,
+    compose,
+    inverse,
+    kld_limit,
+    run_amcl,
+)
+from scanloc.localize.trajectory import Trajectory, drive_trajectory
+from scanloc.sensor.laser import LaserSpec
+from scanloc.sensor.raycast import CastMap, cast_exact
+from scanloc.world.map_server import load_map
+from scanloc.world.occupancy_grid import OCCUPIED, UNKNOWN, OccupancyGrid
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf" / "localizer"
+SPEC = LaserSpec()
+
+
+def small_map(res: float = 0.05) -> OccupancyGrid:
+    """A 6 m x 5 m room with an L-shaped wall, a wall stub and a block: no symmetry."""
+    cells = np.zeros((round(5.0 / res), round(6.0 / res)), dtype=np.int8)
+
+    def box(x0: float, y0: float, x1: float, y1: float) -> None:
+        cells[round(y0 / res) : round(y1 / res), round(x0 / res) : round(x1 / res)] = OCCUPIED
+
+    for x0, y0, x1, y1 in [
+        (0, 0, 6, 0.1),
+        (0, 4.9, 6, 5),
+        (0, 0, 0.1, 5),
+        (5.9, 0, 6, 5),
+        (1.5, 1.2, 1.6, 3.4),
+        (1.5, 3.3, 2.8, 3.4),
+        (4.0, 0.1, 4.1, 1.8),
+        (3.8, 3.0, 4.6, 3.6),
+    ]:
+        box(x0, y0, x1, y1)
+    return OccupancyGrid(cells, res)
+
+
+def ug01_scans(grid: OccupancyGrid, poses: np.ndarray, seed: int) -> np.ndarray:
+    """Exact ranges with UG01-like noise (1σ 30 mm under 1 m, 3 % beyond), no return = 7.0."""
+    exact = cast_exact(CastMap.from_grid(grid), poses, SPEC.beam_angles(), SPEC.range_max)
+    hit = np.isfinite(exact)
+    r = np.where(hit, exact, 0.0)
+    noisy = r + np.where(r < 1.0, 0.03, 0.03 * r) * np.random.default_rng(seed).standard_normal(
+        r.shape
+    )
+    noisy = np.clip(noisy, SPEC.range_min, SPEC.range_max)
+    return np.where(hit, noisy, SPEC.no_return_value).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def drive() -> tuple[OccupancyGrid, Trajectory, np.ndarray]:
+    grid = small_map()
+    traj = drive_trajectory(grid, 300, seed=2, clearance=0.25)
+    return grid, traj, ug01_scans(grid, traj.truth, seed=5)
+
+
+def errors(table: pd.DataFrame, traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    pos = np.hypot(table.x - traj.truth[:, 0], table.y - traj.truth[:, 1]).to_numpy()
+    head = np.abs(np.angle(np.exp(1j * (table.theta.to_numpy() - traj.truth[:, 2]))))
+    return pos, np.degrees(head)
+
+
+def test_kld_limit_is_fox_bound_clamped() -> None:
+    err, z = 0.01, 0.99
+    for k in (2, 3, 10, 57, 200, 1000):
+        b = 2.0 / (9.0 * (k - 1))
+        n = math.ceil((k - 1) / (2 * err) * (1 - b + math.sqrt(b) * z) ** 3)
+        assert kld_limit(k, 1, 10**9, err, z) == n
+        assert kld_limit(k, 100, 5000, err, z) == min(max(n, 100), 5000)
+    assert kld_limit(1, 100, 5000, err, z) == 5000  # amcl: a single bin asks for max_particles
+    assert kld_limit(2, 100, 5000, err, z) == 100
+
+
+def test_cluster_mean_of_headings_straddling_pi() -> None:
+    rng = np.random.default_rng(0)
+    theta = np.angle(np.exp(1j * (math.pi + rng.normal(0.0, 0.05, 400))))
+    poses = np.column_stack([rng.normal(3.0, 0.05, 400), rng.normal(2.0, 0.05, 400), theta])
+    mean, cov, labels = cluster_estimate(poses, np.full(400, 1 / 400))
+    assert len(set(labels)) == 1  # the heading bins wrap: one cluster, not two
+    assert abs(np.angle(np.exp(1j * (mean[2] - math.pi)))) < 0.01
+    assert abs(theta.mean()) < 1.0  # the arithmetic mean would point the other way
+    assert cov[2, 2] == pytest.approx(0.05**2, rel=0.2)
+    assert cov[0, 0] == pytest.approx(0.05**2, rel=0.2)
+    np.testing.assert_allclose(cov, cov.T)
+
+
+def test_heaviest_cluster_wins() -> None:
+    rng = np.random.default_rng(1)
+    a = np.column_stack([rng.normal(1, 0.05, 300), rng.normal(1, 0.05, 300), np.zeros(300)])
+    b = np.column_stack([rng.normal(5, 0.05, 100), rng.normal(4, 0.05, 100), np.ones(100)])
+    poses = np.vstack([a, b])
+    w = np.concatenate([np.full(300, 0.5 / 300), np.full(100, 0.5 / 100 + 1e-6)])
+    mean, _, labels = cluster_estimate(poses, w / w.sum())
+    assert len(set(labels)) == 2
+    np.testing.assert_allclose(mean, [5, 4, 1], atol=0.03)
+
+
+def test_resampling_keeps_the_kld_count() -> None:
+    grid = small_map()
+    params = AmclParams(resample_interval=1, update_min_d=0.0, update_min_a=0.0)
+    amcl = Amcl(grid, SPEC, params, seed=0)
+    truth = np.array([[2.5, 2.0, 0.3]])
+    amcl.initialize_pose(truth[0])
+    scan = ug01_scans(grid, truth, seed=1)[0]
+    amcl.update(np.zeros(3), scan)
+    est = amcl.update(np.array([0.01, 0.0, 0.0]), scan)  # moved: update and resample
+    assert est.updated
+    assert params.min_particles <= est.n_particles <= params.max_particles
+    assert len(amcl.poses) == est.n_particles
+    assert np.all(np.abs(amcl.poses[:, 2]) <= math.pi)
+
+
+def test_tracking_converges(drive: tuple[OccupancyGrid, Trajectory, np.ndarray]) -> None:
+    grid, traj, ranges = drive
+    table = run_amcl(grid, SPEC, traj, ranges, AmclParams(), mode="tracking", seed=0)
+    assert list(table.columns) == list(TABLE_COLUMNS)
+    assert len(table) == len(traj.times)
+    pos, head = errors(table, traj)
+    assert pos[100:].mean() < 0.06
+    assert head[100:].mean() < 2.0
+    assert pos.max() < 0.5
+    # the carried-forward estimate between updates, not a stale one: errors stay small everywhere
+    assert (table.n_particles >= 100).all()
+    rerun = run_amcl(grid, SPEC, traj, ranges, AmclParams(), mode="tracking", seed=0)
+    pd.testing.assert_frame_equal(table, rerun)
+
+
+def test_global_localization_converges(drive: tuple[OccupancyGrid, Trajectory, np.ndarray]) -> None:
+    grid, traj, ranges = drive
+    table = run_amcl(grid, SPEC, traj, ranges, AmclParams(), mode="global", seed=0)
+    pos, head = errors(table, traj)
+    assert pos[0] > 0.5  # it did start lost
+    assert pos[150:].max() < 0.5
+    assert pos[200:].mean() < 0.08
+    assert head[200:].mean() < 3.0
+
+
+def test_estimate_is_carried_by_odometry_between_updates() -> None:
+    grid = small_map()
+    amcl = Amcl(grid, SPEC, AmclParams(), seed=0)
+    truth = np.array([[2.5, 2.0, 0.3], [2.55, 2.0, 0.3]])
+    scans = ug01_scans(grid, truth, seed=2)
+    amcl.initialize_pose(truth[0], np.diag([1e-4, 1e-4, 1e-4]))
+    first = amcl.update(np.array([1.0, 1.0, 0.5]), scans[0])  # odometry frame != map frame
+    second = amcl.update(
+        np.array([1.0 + 0.05 * math.cos(0.5), 1.0 + 0.05 * math.sin(0.5), 0.5]), scans[1]
+    )
+    assert first.updated and not second.updated
+    moved = compose(first.mean, np.array([0.05, 0.0, 0.0]))
+    np.testing.assert_allclose(second.mean, moved, atol=1e-12)
+    np.testing.assert_allclose(compose(inverse(moved), moved), np.zeros(3), atol=1e-12)
+
+
+def test_configs_load_and_unknown_keys_are_rejected() -> None:
+    ros = AmclParams.from_config(yaml.safe_load((CONF / "amcl.yaml").read_text()))
+    defaults = AmclParams()
+    assert ros.max_particles == 5000 and ros.laser_max_beams == 30 and ros.odom_model_type == "diff"
+    assert ros.update_min_a == pytest.approx(math.pi / 6)
+    assert ros.kld_err == defaults.kld_err and ros.laser_z_hit == defaults.laser_z_hit
+    nav2 = AmclParams.from_config(yaml.safe_load((CONF / "amcl_nav2.yaml").read_text()))
+    assert (nav2.min_particles, nav2.max_particles, nav2.laser_max_beams) == (500, 2000, 60)
+    assert nav2.odom_model_type == "diff-corrected" and nav2.resample_interval == 1
+    with pytest.raises(ValueError, match="unknown amcl parameter 'max_beams'"):
+        AmclParams.from_config({"max_beams": 60})
+    with pytest.raises(ValueError, match="'max_particles' must be of type int"):
+        AmclParams.from_config({"max_particles": 10.5})
+    with pytest.raises(ValueError, match="odom_model_type"):
+        AmclParams(odom_model_type="omni")
+    with pytest.raises(ValueError, match="min_particles"):
+        AmclParams(min_particles=10, max_particles=5)
+
+
+def test_bad_input_is_rejected_clearly() -> None:
+    grid = small_map()
+    amcl = Amcl(grid, SPEC, seed=0)
+    scan = np.full(SPEC.num_beams, 2.0, dtype=np.float32)
+    with pytest.raises(RuntimeError, match="initialize"):
+        amcl.update(np.zeros(3), scan)
+    amcl.initialize_global()
+    with pytest.raises(ValueError, match=r"expected \(667,\) ranges"):
+        amcl.update(np.zeros(3), scan[:100])
+    scan[5] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        amcl.update(np.zeros(3), scan)
+    with pytest.raises(ValueError, match="odom_pose"):
+        amcl.update(np.array([0.0, np.inf, 0.0]), np.full(SPEC.num_beams, 2.0))
+    blocked = OccupancyGrid(np.where(grid.free, UNKNOWN, grid.cells).astype(np.int8), 0.05)
+    with pytest.raises(ValueError, match="no free cell"):
+        Amcl(blocked, SPEC)
+    with pytest.raises(ValueError, match="symmetric PSD"):
+        amcl.initialize_pose(np.zeros(3), -np.eye(3))
+
+
+def test_benchmark_quick_run_reports_its_figures() -> None:
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "amcl.py"), "--quick"],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    figures = json.loads(out.stdout.strip().splitlines()[-1])
+    for key in ("hz_1k", "hz_5k", "hz_10k", "reference_hz_10k", "beam_evals_per_s"):
+        assert figures[key] > 0, key
+    assert figures["weights_max_rel_diff"] < 1e-9  # the compiled and numpy models agree
+
+
+def test_map1_accuracy_with_the_shipped_config(stdr_maps_dir: Path) -> None:
+    """Paper map 1, the trajectory stage's seed and length, UG01 noise: the accuracy goal."""
+    grid = load_map(stdr_maps_dir / "sparse_obstacles.yaml")
+    traj = drive_trajectory(grid, 600, seed=7)
+    ranges = ug01_scans(grid, traj.truth, seed=8)
+    params = AmclParams.from_config(yaml.safe_load((CONF / "amcl.yaml").read_text()))
+    pos, head = errors(run_amcl(grid, SPEC, traj, ranges, params, mode="tracking", seed=0), traj)
+    assert pos.mean() <= 0.05
+    assert head.mean() <= 2.0
+    pos, _ = errors(run_amcl(grid, SPEC, traj, ranges, params, mode="global", seed=0), traj)
+    assert pos[0] > 0.5 and pos[300:].max() < 0.5
