@@ -14,7 +14,6 @@ import pytest
 import yaml
 
 from scanloc.localize.amcl import (
-    TABLE_COLUMNS,
     Amcl,
     AmclParams,
     cluster_estimate,
@@ -23,6 +22,7 @@ from scanloc.localize.amcl import (
     kld_limit,
     run_amcl,
 )
+from scanloc.localize.estimates import TABLE_COLUMNS
 from scanloc.localize.trajectory import Trajectory, drive_trajectory
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.raycast import CastMap, cast_exact

@@ -11,12 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scanloc.localize.cnn_localizer import (
-    TABLE_COLUMNS,
-    ensemble_mean_and_cov,
-    localize_cnn,
-    wrap_angle,
-)
+from scanloc.localize.cnn_localizer import ensemble_mean_and_cov, localize_cnn
+from scanloc.localize.estimates import TABLE_COLUMNS, wrap_angle
 
 
 def test_circular_mean_across_pi() -> None:

@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 
 from scanloc.evaluate.table2 import evaluate_dir
-from scanloc.localize.cnn_localizer import TABLE_COLUMNS
+from scanloc.localize.estimates import TABLE_COLUMNS
 from scanloc.report.build import SECTIONS, build_report
 from scanloc.world.map_server import save_map
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from scanloc.localize.estimates import wrap_angle
 from scanloc.localize.trajectory import (
     FILES,
     OdometryNoise,
@@ -16,7 +17,6 @@ from scanloc.localize.trajectory import (
     drive_trajectory,
     load_trajectory,
     save_trajectory,
-    wrap,
 )
 from scanloc.world.occupancy_grid import OCCUPIED, UNKNOWN, OccupancyGrid
 
@@ -82,7 +82,7 @@ def test_limits_and_timing(grid: OccupancyGrid) -> None:
     assert traj.truth.shape == traj.odometry.shape == (400, 3)
     np.testing.assert_allclose(traj.times, np.arange(400) / RATE)
     step = np.hypot(*np.diff(traj.truth[:, :2], axis=0).T)
-    turn = np.abs(wrap(np.diff(traj.truth[:, 2])))
+    turn = np.abs(wrap_angle(np.diff(traj.truth[:, 2])))
     assert step.max() <= 0.6 / RATE + 1e-12
     assert turn.max() <= 0.8 / RATE + 1e-12
     assert step.mean() > 0.3 / RATE  # it really drives
@@ -101,7 +101,7 @@ def test_deterministic_for_a_seed(grid: OccupancyGrid) -> None:
 
 def step_motion(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-step translation and heading change."""
-    return np.hypot(*np.diff(poses[:, :2], axis=0).T), wrap(np.diff(poses[:, 2]))
+    return np.hypot(*np.diff(poses[:, :2], axis=0).T), wrap_angle(np.diff(poses[:, 2]))
 
 
 def test_odometry_random_drift_has_the_configured_spread(grid: OccupancyGrid) -> None:

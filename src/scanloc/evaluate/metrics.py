@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scanloc.localize.cnn_localizer import wrap_angle
+from scanloc.localize.estimates import table_poses, wrap_angle
 
 POSE_COLUMNS = ("x", "y", "theta")
 POSITION_COV_COLUMNS = ("cov_xx", "cov_xy", "cov_yy")
@@ -103,7 +103,7 @@ def localization_metrics(
     if truth.ndim != 2 or truth.shape[1] != 3:
         raise ValueError(f"truth must have shape (T, 3), got {truth.shape}")
     check_table(table, source, steps=truth.shape[0])
-    est = table[list(POSE_COLUMNS)].to_numpy(dtype=np.float64)
+    est = table_poses(table)
     valid = np.isfinite(est).all(axis=1) & np.isfinite(truth).all(axis=1)
     est, true = est[valid], truth[valid]
 

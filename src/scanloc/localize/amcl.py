@@ -39,12 +39,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numba
 import numpy as np
 import pandas as pd
 
+from scanloc.localize.config_params import params_from_config
+from scanloc.localize.estimates import estimate_table, wrap_angle
 from scanloc.localize.likelihood_field import beam_weights, build_likelihood_field, select_beams
 from scanloc.localize.motion_model import ODOM_MODELS, odometry_delta, sample_motion
 from scanloc.sensor.laser import LaserSpec
@@ -53,20 +55,6 @@ from scanloc.world.occupancy_grid import OccupancyGrid
 BIN_XY: float = 0.5  # metres, amcl's pf_kdtree cell size in x and y
 BIN_THETA: float = math.radians(10.0)  # amcl's pf_kdtree cell size in heading
 BIN_MARGIN: float = 2.0  # metres of histogram around the map
-TABLE_COLUMNS: tuple[str, ...] = (
-    "step",
-    "t",
-    "x",
-    "y",
-    "theta",
-    "cov_xx",
-    "cov_xy",
-    "cov_xt",
-    "cov_yy",
-    "cov_yt",
-    "cov_tt",
-    "n_particles",
-)
 _CONFIG_META_KEYS = frozenset({"name", "kind", "mode", "seed"})
 
 
@@ -146,34 +134,7 @@ class AmclParams:
 
         Raises ValueError for an unknown key, naming it and listing the known ones.
         """
-        known = {f.name: f for f in fields(cls)}
-        values: dict[str, object] = {}
-        for key, value in config.items():
-            if key in _CONFIG_META_KEYS:
-                continue
-            if key not in known:
-                raise ValueError(
-                    f"unknown amcl parameter {key!r}; known parameters: {', '.join(sorted(known))}"
-                )
-            values[key] = _coerce(key, value, getattr(cls, key))
-        return cls(**values)  # type: ignore[arg-type]
-
-
-def _coerce(key: str, value: object, default: object) -> object:
-    """`value` as the type of the parameter's default, or a ValueError naming the parameter."""
-    kind = type(default)
-    ok = (
-        isinstance(value, bool)
-        if kind is bool
-        else isinstance(value, str)
-        if kind is str
-        else isinstance(value, (int, float)) and not isinstance(value, bool)
-    )
-    if ok and kind is int and int(value) != value:  # type: ignore[call-overload]
-        ok = False
-    if not ok:
-        raise ValueError(f"amcl parameter {key!r} must be of type {kind.__name__}, got {value!r}")
-    return kind(value)
+        return params_from_config(cls, config, "amcl", skip=_CONFIG_META_KEYS)
 
 
 @dataclass(frozen=True)
@@ -432,7 +393,7 @@ def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         [
             a[0] + c * b[0] - s * b[1],
             a[1] + s * b[0] + c * b[1],
-            math.atan2(math.sin(theta), math.cos(theta)),
+            float(wrap_angle(theta)),
         ]
     )
 
@@ -525,7 +486,7 @@ class Amcl:
             raise ValueError(f"initial covariance must be a symmetric PSD 3 x 3 matrix, got {cov}")
         n = self.params.max_particles
         poses = self.rng.multivariate_normal(mean, cov, size=n, method="eigh")
-        poses[:, 2] = np.arctan2(np.sin(poses[:, 2]), np.cos(poses[:, 2]))
+        poses[:, 2] = wrap_angle(poses[:, 2])
         self._reset(poses)
 
     def initialize_global(self) -> None:
@@ -690,23 +651,11 @@ def run_amcl(
         amcl.initialize_pose(truth[0])
     else:
         amcl.initialize_global()
-    rows = np.empty((len(odometry), len(TABLE_COLUMNS)))
-    for step in range(len(odometry)):
-        est = amcl.update(odometry[step], ranges[step])
-        c = est.cov
-        rows[step] = (
-            step,
-            times[step],
-            *est.mean,
-            c[0, 0],
-            c[0, 1],
-            c[0, 2],
-            c[1, 1],
-            c[1, 2],
-            c[2, 2],
-            est.n_particles,
-        )
-    table = pd.DataFrame(rows, columns=list(TABLE_COLUMNS))
-    table["step"] = table["step"].astype(np.int64)
-    table["n_particles"] = table["n_particles"].astype(np.int64)
-    return table
+    estimates = [amcl.update(odometry[step], ranges[step]) for step in range(len(odometry))]
+    return estimate_table(
+        np.arange(len(odometry)),
+        times,
+        np.array([est.mean for est in estimates]),
+        np.array([est.cov for est in estimates]),
+        np.array([est.n_particles for est in estimates]),
+    )

@@ -6,7 +6,7 @@ spread of the members also yields a covariance. Two details the paper leaves ope
 here: θ is averaged on the circle (an arithmetic mean of −179° and +179° would point backwards)
 and the members' covariance uses θ deviations wrapped around that circular mean.
 
-Output: the per-step table shared by all localizers (`TABLE_COLUMNS`). A single network has
+Output: the per-step table shared by all localizers (`estimates.py`). A single network has
 no covariance (NaN columns) and `n_particles` = 1, the number of hypotheses behind the
 estimate; an ensemble reports its number of members there.
 """
@@ -21,22 +21,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-TABLE_COLUMNS: tuple[str, ...] = (
-    "step",
-    "t",
-    "x",
-    "y",
-    "theta",
-    "cov_xx",
-    "cov_xy",
-    "cov_xt",
-    "cov_yy",
-    "cov_yt",
-    "cov_tt",
-    "n_particles",
-)
-_COV_INDEX = {"cov_xx": (0, 0), "cov_xy": (0, 1), "cov_xt": (0, 2), "cov_yy": (1, 1)}
-_COV_INDEX |= {"cov_yt": (1, 2), "cov_tt": (2, 2)}
+from scanloc.localize.estimates import estimate_table, wrap_angle
 
 
 class CnnLocalization(NamedTuple):
@@ -45,11 +30,6 @@ class CnnLocalization(NamedTuple):
 
     table: pd.DataFrame
     time_per_scan_s: float
-
-
-def wrap_angle(angle: np.ndarray) -> np.ndarray:
-    """Angles wrapped to (−π, π]."""
-    return np.pi - np.mod(np.pi - np.asarray(angle, dtype=np.float64), 2.0 * np.pi)
 
 
 def ensemble_mean_and_cov(preds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -76,24 +56,6 @@ def ensemble_mean_and_cov(preds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     dev[:, :, 2] = wrap_angle(dev[:, :, 2])
     cov = np.einsum("mti,mtj->tij", dev, dev) / (members - 1)
     return mean, cov
-
-
-def estimate_table(
-    mean: np.ndarray, cov: np.ndarray, times: np.ndarray, members: int
-) -> pd.DataFrame:
-    """The shared per-step table from per-step means (T, 3) and covariances (T, 3, 3)."""
-    steps = mean.shape[0]
-    columns: dict[str, np.ndarray] = {
-        "step": np.arange(steps, dtype=np.int64),
-        "t": np.asarray(times, dtype=np.float64),
-        "x": mean[:, 0],
-        "y": mean[:, 1],
-        "theta": wrap_angle(mean[:, 2]),
-    }
-    for name, (i, j) in _COV_INDEX.items():
-        columns[name] = cov[:, i, j]
-    columns["n_particles"] = np.full(steps, members, dtype=np.int64)
-    return pd.DataFrame(columns, columns=list(TABLE_COLUMNS))
 
 
 def localize_cnn(
@@ -127,5 +89,5 @@ def localize_cnn(
     if preds.shape != (len(paths), ranges.shape[0], 3):
         raise ValueError(f"predict returned shape {preds.shape[1:]}, expected ({len(ranges)}, 3)")
     mean, cov = ensemble_mean_and_cov(preds)
-    table = estimate_table(mean, cov, times, len(paths))
+    table = estimate_table(np.arange(len(times)), times, mean, cov, len(paths))
     return CnnLocalization(table, elapsed / max(ranges.shape[0], 1))

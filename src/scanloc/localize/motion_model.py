@@ -21,19 +21,16 @@ import math
 import numba
 import numpy as np
 
+from scanloc.localize.estimates import wrap_angle
+
 ODOM_MODELS: tuple[str, ...] = ("diff", "diff-corrected")
 MIN_TRANS_FOR_BEARING: float = 0.01  # metres; amcl's threshold below which rot1 = 0
 
 
 def angle_diff(a: float, b: float) -> float:
-    """amcl's angle_diff: the signed difference a - b wrapped into [-π, π]."""
-    a = math.atan2(math.sin(a), math.cos(a))
-    b = math.atan2(math.sin(b), math.cos(b))
-    d1 = a - b
-    d2 = 2.0 * math.pi - abs(d1)
-    if d1 > 0:
-        d2 *= -1.0
-    return d1 if abs(d1) < abs(d2) else d2
+    """amcl's angle_diff: the signed difference a - b wrapped into (-π, π] (amcl's own returns
+    -π where this returns π: the same turn)."""
+    return float(wrap_angle(a - b))
 
 
 def odometry_delta(old_odom: np.ndarray, new_odom: np.ndarray) -> np.ndarray:

@@ -37,6 +37,7 @@ from scipy.ndimage import distance_transform_edt, uniform_filter1d
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from scanloc.io import atomic_path
+from scanloc.localize.estimates import wrap_angle
 from scanloc.world.occupancy_grid import OccupancyGrid
 
 PLAN_RESOLUTION = 0.1  # metres between planning graph nodes
@@ -82,11 +83,6 @@ class Trajectory:
     truth: np.ndarray
     odometry: np.ndarray
     waypoints: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-
-
-def wrap(angle: np.ndarray | float) -> np.ndarray:
-    """Angles wrapped into (-π, π]."""
-    return -np.remainder(np.pi - np.asarray(angle, dtype=np.float64), 2.0 * np.pi) + np.pi
 
 
 def clearance_map(grid: OccupancyGrid) -> np.ndarray:
@@ -299,7 +295,7 @@ def _pure_pursuit(
             raise RuntimeError("the route ran out before num_steps; this is a bug in the planner")
         dx, dy = route[target, 0] - x, route[target, 1] - y
         alpha = math.atan2(dy, dx) - theta
-        alpha = math.atan2(math.sin(alpha), math.cos(alpha))
+        alpha = float(wrap_angle(alpha))
         if abs(alpha) > math.pi / 3:  # target far off the heading: stop and turn towards it
             v_cmd, omega_cmd = 0.0, math.copysign(min(max_turn_rate, 2.0 * abs(alpha)), alpha)
         else:
@@ -316,7 +312,7 @@ def _pure_pursuit(
         chord = v * dt if abs(dtheta) < 1e-12 else 2.0 * v / omega * math.sin(dtheta / 2.0)
         x += chord * math.cos(theta + dtheta / 2.0)
         y += chord * math.sin(theta + dtheta / 2.0)
-        theta = math.atan2(math.sin(theta + dtheta), math.cos(theta + dtheta))
+        theta = float(wrap_angle(theta + dtheta))
         poses[t] = (x, y, theta)
         steps[t - 1] = (dtheta / 2.0, chord, dtheta / 2.0)
     return poses, steps
@@ -340,7 +336,7 @@ def integrate_odometry(
     out[0] = start
     out[1:, 0] = start[0] + np.cumsum(tr * np.cos(heading_mid))
     out[1:, 1] = start[1] + np.cumsum(tr * np.sin(heading_mid))
-    out[1:, 2] = wrap(heading_mid + r2)
+    out[1:, 2] = wrap_angle(heading_mid + r2)
     return out
 
 

@@ -63,6 +63,8 @@ METHOD_NOTES = {
     "cnn_single": "one 1D CNN (Table 1 row cnn1d_200k), each scan alone",
     "cnn_ensemble": "mean of several 1D CNNs (circular mean for θ), each scan alone; "
     "covariance = the members' spread; hypotheses = members",
+    "cnn_ekf": "beyond the paper: an EKF fusing the ensemble's poses (with its covariance) with "
+    "odometry over time, outliers gated; hypotheses = 1 Gaussian",
 }
 TRAJECTORY = Path("data/trajectories/map1_drive")
 METRICS_DIR = Path("reports/metrics")

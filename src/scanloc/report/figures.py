@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 
 from scanloc.io import atomic_path
-from scanloc.localize.cnn_localizer import wrap_angle
+from scanloc.localize.estimates import table_poses, wrap_angle
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid
 
 DPI = 100
@@ -225,7 +225,7 @@ def plot_trajectories(
 
 def step_errors(truth: np.ndarray, table: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     """Per-step position error [m] and absolute wrapped heading error [°] (NaN if missing)."""
-    est = table[["x", "y", "theta"]].to_numpy(dtype=np.float64)
+    est = table_poses(table)
     pos = np.hypot(est[:, 0] - truth[:, 0], est[:, 1] - truth[:, 1])
     heading = np.degrees(np.abs(wrap_angle(est[:, 2] - truth[:, 2])))
     return pos, heading

@@ -1,0 +1,87 @@
+"""The per-step estimate table every localizer writes (reports/localize/<method>.csv).
+
+One row per trajectory step: step index, time, pose (x, y, θ ∈ (−π, π]), the six distinct
+entries of the pose covariance (NaN where a localizer has none) and `n_particles`, the number
+of hypotheses behind the estimate (amcl: particles; an ensemble: members; one network or a
+Kalman filter: 1). Evaluation and report read this format; localizers build it here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+TABLE_COLUMNS: tuple[str, ...] = (
+    "step",
+    "t",
+    "x",
+    "y",
+    "theta",
+    "cov_xx",
+    "cov_xy",
+    "cov_xt",
+    "cov_yy",
+    "cov_yt",
+    "cov_tt",
+    "n_particles",
+)
+COV_INDEX: dict[str, tuple[int, int]] = {
+    "cov_xx": (0, 0),
+    "cov_xy": (0, 1),
+    "cov_xt": (0, 2),
+    "cov_yy": (1, 1),
+    "cov_yt": (1, 2),
+    "cov_tt": (2, 2),
+}
+
+
+def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
+    """Angles wrapped to (−π, π]."""
+    return np.pi - np.mod(np.pi - np.asarray(angle, dtype=np.float64), 2.0 * np.pi)
+
+
+def estimate_table(
+    steps: np.ndarray,
+    times: np.ndarray,
+    means: np.ndarray,
+    covs: np.ndarray | None,
+    n_particles: np.ndarray | int,
+) -> pd.DataFrame:
+    """The per-step table from step indices (T,), times (T,), poses (T, 3), covariances
+    (T, 3, 3) or None (all NaN) and hypothesis counts (T,) or one count for every step.
+    θ is wrapped to (−π, π]."""
+    means = np.asarray(means, dtype=np.float64)
+    if means.ndim != 2 or means.shape[1] != 3:
+        raise ValueError(f"means must have shape (T, 3), got {means.shape}")
+    count = means.shape[0]
+    covs = np.full((count, 3, 3), np.nan) if covs is None else np.asarray(covs, np.float64)
+    if covs.shape != (count, 3, 3):
+        raise ValueError(f"covs must have shape ({count}, 3, 3), got {covs.shape}")
+    columns: dict[str, np.ndarray] = {
+        "step": np.asarray(steps, dtype=np.int64),
+        "t": np.asarray(times, dtype=np.float64),
+        "x": means[:, 0],
+        "y": means[:, 1],
+        "theta": wrap_angle(means[:, 2]),
+    }
+    for name, (i, j) in COV_INDEX.items():
+        columns[name] = covs[:, i, j]
+    hypotheses = np.asarray(n_particles, dtype=np.int64)
+    columns["n_particles"] = np.full(count, hypotheses) if hypotheses.ndim == 0 else hypotheses
+    for name in ("step", "t", "n_particles"):
+        if columns[name].shape != (count,):
+            raise ValueError(f"{name} must have shape ({count},), got {columns[name].shape}")
+    return pd.DataFrame(columns, columns=list(TABLE_COLUMNS))
+
+
+def table_poses(table: pd.DataFrame) -> np.ndarray:
+    """The (T, 3) poses of a per-step table."""
+    return table[["x", "y", "theta"]].to_numpy(dtype=np.float64)
+
+
+def table_covariances(table: pd.DataFrame) -> np.ndarray:
+    """The (T, 3, 3) symmetric pose covariances of a per-step table (NaN where it has none)."""
+    covs = np.empty((len(table), 3, 3))
+    for name, (i, j) in COV_INDEX.items():
+        covs[:, i, j] = covs[:, j, i] = table[name].to_numpy(dtype=np.float64)
+    return covs
