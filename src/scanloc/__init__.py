@@ -1,3 +1,6 @@
-"""scanloc: learned 2D laser localization, a reproduction of Dietrich (2017) "Deep Learning Localization"."""
+"""scanloc: learned 2D laser localization.
+
+A reproduction of Dietrich (2017) "Deep Learning Localization" with a faithful amcl baseline.
+"""
 
 __version__ = "0.1.0"

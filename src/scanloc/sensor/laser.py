@@ -27,7 +27,9 @@ class LaserSpec:
         if self.num_beams < 2:
             raise ValueError(f"num_beams must be >= 2, got {self.num_beams}")
         if not self.angle_max > self.angle_min:
-            raise ValueError(f"angle_max ({self.angle_max}) must exceed angle_min ({self.angle_min})")
+            raise ValueError(
+                f"angle_max ({self.angle_max}) must exceed angle_min ({self.angle_min})"
+            )
         if not 0 <= self.range_min < self.range_max:
             raise ValueError(
                 f"need 0 <= range_min < range_max, got {self.range_min}, {self.range_max}"
