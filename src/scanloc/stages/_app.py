@@ -40,11 +40,12 @@ def to_dict(node: DictConfig) -> dict[str, Any]:
 
 
 @contextmanager
-def timed_stage(name: str) -> Iterator[None]:
-    """Record the stage's wall time in reports/timing/<name>.json (a cache-less DVC metric)."""
+def timed_stage(name: str, folder: Path = TIMING_DIR) -> Iterator[None]:
+    """Record the stage's wall time in <folder>/<name>.json (under DVC: reports/timing/, a
+    cache-less metric)."""
     start = time.perf_counter()
     yield
     write_json(
-        TIMING_DIR / f"{name}.json",
+        folder / f"{name}.json",
         {"stage": name, "wall_s": round(time.perf_counter() - start, 3)},
     )

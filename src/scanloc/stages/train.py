@@ -14,9 +14,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from scanloc.io import write_json
-from scanloc.models.stacked_ensemble import fit_stacked
-from scanloc.models.training import fit
-from scanloc.stages._app import stage_main, timed_stage, to_dict
+from scanloc.stages._app import TIMING_DIR, stage_main, timed_stage, to_dict
 
 
 def output_paths(cfg: DictConfig) -> tuple[Path, Path]:
@@ -49,6 +47,10 @@ def run_config(cfg: DictConfig) -> dict[str, Any]:
 
 def train(cfg: DictConfig) -> dict[str, Any]:
     """Train what `cfg.experiment` describes and return its metrics."""
+    # Imported here so that `--cfg job` and a sweep's parent process stay fast.
+    from scanloc.models.stacked_ensemble import fit_stacked
+    from scanloc.models.training import fit
+
     exp = cfg.experiment
     out_dir, metrics_path = output_paths(cfg)
     common = {
@@ -84,7 +86,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
 
 @stage_main("train")
 def main(cfg: DictConfig) -> float:
-    with timed_stage(f"train_{cfg.experiment.name}"):
+    multirun = HydraConfig.get().mode == RunMode.MULTIRUN
+    timing_dir = output_paths(cfg)[1].parent if multirun else TIMING_DIR
+    with timed_stage(f"train_{cfg.experiment.name}", timing_dir):
         metrics = train(cfg)
     # The value a Hydra sweeper would minimise.
     return float(metrics.get("val_mae", float("nan")))
