@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from scanloc.report.build import SECTIONS
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 TABLE2_KEYS = {
@@ -104,7 +106,10 @@ def test_smoke_repro_writes_the_contract_artifacts(smoke_repo: Path) -> None:
     html = (smoke_repo / "reports/report.html").read_text()
     assert html.count('src="data:image/png;base64,') >= 6
     assert "http://" not in html and "https://" not in html
-    assert (smoke_repo / "reports/report.md").is_file()
+    markdown = (smoke_repo / "reports/report.md").read_text()
+    for section_id, title in SECTIONS:
+        assert f'id="{section_id}"' in html, section_id
+        assert title in markdown, title
 
 
 def test_smoke_metrics_hold_table1_and_table2(smoke_repo: Path) -> None:

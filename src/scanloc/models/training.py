@@ -1,0 +1,437 @@
+"""Train one network on a scan dataset with Lightning, resumably and reproducibly.
+
+`fit` writes into out_dir (the DVC output):
+- model.pt    the weights of the epoch with the lowest validation MAE: a plain dict
+              {"model_cfg": ..., "state_dict": ...} (no paths, no times: byte-reproducible);
+- last.pt     the final weights, same format;
+- history.csv one row per epoch (HISTORY_COLUMNS; deterministic);
+- metrics.json final and best validation MAE, epochs, epoch_s (median wall seconds per epoch,
+              the one non-deterministic figure), sample counts, trainable parameters;
+- snapshots/epoch_<e>.pt for each e in snapshot_epochs.
+Lightning checkpoints (last.ckpt, best.ckpt) go to checkpoint_dir/<key>/, where <key> hashes
+everything that determines the result (configuration, dataset bytes, init weights, training
+code). If a last.ckpt exists under the same key, training resumes from it and ends with the
+weights an uninterrupted run would have produced.
+"""
+
+from __future__ import annotations
+
+import copy
+import ctypes
+import hashlib
+import inspect
+import io
+import json
+import logging
+import os
+import statistics
+import sys
+import tempfile
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from hydra.utils import get_class, instantiate
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint
+from omegaconf import DictConfig, OmegaConf
+from torch import nn
+
+import scanloc.data.datamodule as datamodule_py
+import scanloc.data.rasterize as rasterize_py
+from scanloc.data.datamodule import ScanDataModule, open_scan_dataset
+from scanloc.data.scan_dataset import ScanDataset
+from scanloc.io import atomic_path, write_json
+from scanloc.models.pose_regressor import HISTORY_COLUMNS, PoseRegressor
+
+PathLike = str | os.PathLike[str]
+TRAINER_DEFAULTS: dict[str, Any] = {
+    "accelerator": "cpu",
+    "devices": 1,
+    "precision": "32-true",
+    "deterministic": True,
+}
+# Trainer arguments that fit sets itself.
+_FIXED_TRAINER_KEYS = {
+    "max_epochs",
+    "logger",
+    "callbacks",
+    "default_root_dir",
+    "enable_checkpointing",
+    "num_sanity_val_steps",
+    "check_val_every_n_epoch",
+}
+
+
+# ---------------------------------------------------------------- model files
+
+
+def build_model(model_cfg: Mapping[str, Any]) -> nn.Module:
+    """Instantiate a network from a config dict with `_target_` (hydra.utils.instantiate)."""
+    _target_of(model_cfg)
+    return instantiate(plain_config(model_cfg), _convert_="all")
+
+
+def plain_config(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """A plain JSON-able copy (no OmegaConf nodes), as stored in model files."""
+    if isinstance(model_cfg, DictConfig):
+        model_cfg = OmegaConf.to_container(model_cfg, resolve=True)  # type: ignore[assignment]
+    return json.loads(json.dumps(dict(model_cfg)))
+
+
+def dataset_model_cfg(model_cfg: Mapping[str, Any], data: ScanDataset) -> dict[str, Any]:
+    """model_cfg with the sensor geometry the network's constructor takes filled in from the
+    dataset (num_beams; angle_min/angle_max for the 2D CNN) unless given; a num_beams that
+    contradicts the data is an error."""
+    cfg = plain_config(model_cfg)
+    accepted = inspect.signature(get_class(_target_of(cfg))).parameters
+    beams = int(data.ranges.shape[1])
+    if cfg.setdefault("num_beams", beams) != beams:
+        raise ValueError(
+            f"{data.path}/ranges.npy: scans have {beams} beams, model_cfg says "
+            f"num_beams={cfg['num_beams']}"
+        )
+    sensor = data.meta.get("sensor", {})
+    for key in ("angle_min", "angle_max"):
+        if key in accepted and key in sensor:
+            cfg.setdefault(key, float(sensor[key]))
+    return cfg
+
+
+def _target_of(model_cfg: Mapping[str, Any]) -> str:
+    if "_target_" not in model_cfg:
+        raise ValueError(f"model_cfg needs a '_target_' (a class path), got keys {list(model_cfg)}")
+    return str(model_cfg["_target_"])
+
+
+def model_file_bytes(model_cfg: Mapping[str, Any], state_dict: Mapping[str, torch.Tensor]) -> bytes:
+    """The model.pt format. Saved through memory: torch.save names its zip folder after the
+    file, so saving to a temporary name would put that name into the bytes."""
+    state = {k: v.detach().cpu().clone().contiguous() for k, v in state_dict.items()}
+    buffer = io.BytesIO()
+    torch.save({"model_cfg": copy.deepcopy(dict(model_cfg)), "state_dict": state}, buffer)
+    return buffer.getvalue()
+
+
+def save_model(path: PathLike, model_cfg: Mapping[str, Any], state_dict) -> None:
+    """Write a model file atomically."""
+    data = model_file_bytes(model_cfg, state_dict)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def read_model_file(path: PathLike) -> dict[str, Any]:
+    """{"model_cfg", "state_dict"} of a model.pt, with errors that name the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: model file not found")
+    try:
+        content = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises several types for a damaged file
+        raise ValueError(f"{path}: not a readable model file ({err})") from None
+    if not isinstance(content, dict) or not {"model_cfg", "state_dict"} <= content.keys():
+        raise ValueError(f"{path}: expected a dict with 'model_cfg' and 'state_dict'")
+    return content
+
+
+def load_model(path: PathLike) -> nn.Module:
+    """The network stored in a model.pt, in eval mode on the CPU."""
+    content = read_model_file(path)
+    model = build_model(content["model_cfg"])
+    model.load_state_dict(content["state_dict"])
+    return model.eval()
+
+
+def load_weights_(model: nn.Module, path: PathLike) -> None:
+    """Copy the weights of a compatible model.pt into `model` (transfer learning)."""
+    state = read_model_file(path)["state_dict"]
+    own = model.state_dict()
+    mismatched = [k for k in own if k not in state or state[k].shape != own[k].shape]
+    if mismatched or len(state) != len(own):
+        raise ValueError(
+            f"{path}: 'state_dict' does not fit this model (missing or differently shaped: "
+            f"{mismatched[:5]}; {len(state)} vs {len(own)} entries)"
+        )
+    model.load_state_dict(state)
+
+
+@torch.no_grad()
+def predict(model: nn.Module, ranges: np.ndarray, batch_size: int = 512) -> np.ndarray:
+    """Poses (N, 3) float64 = (x, y, θ) predicted for scans `ranges` (N, beams), in eval mode."""
+    ranges = np.asarray(ranges, dtype=np.float32)
+    if ranges.ndim != 2:
+        raise ValueError(f"ranges must have shape (N, beams), got {ranges.shape}")
+    model.eval()
+    device = next(model.parameters()).device
+    out = [
+        model(torch.from_numpy(ranges[i : i + batch_size]).to(device)).double().cpu()
+        for i in range(0, len(ranges), batch_size)
+    ]
+    return torch.cat(out).numpy() if out else np.zeros((0, 3))
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Trainable parameters (Keras' 'trainable params')."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+# ---------------------------------------------------------------- outputs
+
+
+def write_history(path: PathLike, history: Sequence[Mapping[str, float]]) -> None:
+    """history.csv: exact float reprs, no times, so equal runs give equal bytes."""
+    lines = [",".join(HISTORY_COLUMNS)]
+    lines += [",".join(repr(row[column]) for column in HISTORY_COLUMNS) for row in history]
+    with atomic_path(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+
+
+def best_index(history: Sequence[Mapping[str, float]]) -> int:
+    """Row of the lowest val_mae, the first of ties (as ModelCheckpoint keeps it)."""
+    return min(range(len(history)), key=lambda i: history[i]["val_mae"])
+
+
+def split_counts(data: ScanDataset, max_samples: int | None) -> tuple[int, int]:
+    """(train, val) samples among the first max_samples of the dataset."""
+    count = len(data) if max_samples is None else min(max_samples, len(data))
+    n_val = int(np.count_nonzero(data.is_val[:count]))
+    return count - n_val, n_val
+
+
+def training_metrics(
+    history: Sequence[Mapping[str, float]],
+    epoch_seconds: Sequence[float],
+    counts: tuple[int, int],
+    params: int,
+) -> dict[str, Any]:
+    best = best_index(history)
+    last = history[-1]
+    return {
+        "val_mae": last["val_mae"],
+        "train_mae": last["train_mae"],
+        "val_pos_err_m": last["val_pos_err_m"],
+        "val_heading_err_deg": last["val_heading_err_deg"],
+        "best_val_mae": history[best]["val_mae"],
+        "best_epoch": int(history[best]["epoch"]),
+        "epochs": len(history),
+        "epoch_s": round(statistics.median(epoch_seconds), 4) if epoch_seconds else None,
+        "train_samples": counts[0],
+        "val_samples": counts[1],
+        "samples": counts[0] + counts[1],
+        "params": params,
+    }
+
+
+# ---------------------------------------------------------------- resume key
+
+
+def _file_digest(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 22):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _code_digest() -> str:
+    """The training code's source: a checkpoint from other code must not be resumed."""
+    files = sorted(Path(__file__).parent.glob("*.py"))
+    files += [Path(datamodule_py.__file__), Path(rasterize_py.__file__)]
+    return hashlib.sha256(b"".join(f.read_bytes() for f in files)).hexdigest()
+
+
+def run_key(config: Mapping[str, Any], dataset_dir: PathLike, init_from: PathLike | None) -> str:
+    """A short hash of everything that determines a training run's result."""
+    dataset = Path(dataset_dir)
+    names = ("meta.json", "ranges.npy", "poses.npy", "is_val.npy")
+    content = {
+        "config": config,
+        "dataset": {n: _file_digest(dataset / n) for n in names},
+        "init_from": None if init_from is None else _file_digest(Path(init_from)),
+        "code": _code_digest(),
+    }
+    text = json.dumps(content, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@contextmanager
+def _run_dir(checkpoint_dir: PathLike | None, key: str) -> Iterator[Path]:
+    """checkpoint_dir/<key>, or a temporary folder (removed afterwards) without resume."""
+    if checkpoint_dir is not None:
+        path = Path(checkpoint_dir) / key
+        path.mkdir(parents=True, exist_ok=True)
+        yield path
+        return
+    with tempfile.TemporaryDirectory(prefix="scanloc-fit-") as tmp:
+        yield Path(tmp)
+
+
+# ---------------------------------------------------------------- training
+
+
+class _Snapshots(Callback):
+    """Model files of chosen epochs, kept beside the checkpoints until the run ends."""
+
+    def __init__(self, folder: Path, epochs: Sequence[int], model_cfg: Mapping[str, Any]):
+        self.folder, self.epochs, self.model_cfg = folder, set(epochs), model_cfg
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: PoseRegressor) -> None:
+        epoch = trainer.current_epoch + 1
+        if epoch in self.epochs and trainer.is_global_zero:
+            path = self.folder / f"epoch_{epoch}.pt"
+            save_model(path, self.model_cfg, pl_module.model.state_dict())
+
+
+def trainer_arguments(trainer_cfg: Mapping[str, Any] | None) -> dict[str, Any]:
+    """Trainer kwargs: TRAINER_DEFAULTS updated by trainer_cfg (conf/trainer/*.yaml).
+
+    `matmul_precision` is not a Trainer argument: it sets torch.set_float32_matmul_precision.
+    """
+    cfg = dict(trainer_cfg or {})
+    clash = sorted(_FIXED_TRAINER_KEYS & cfg.keys())
+    if clash:
+        raise ValueError(f"trainer_cfg: {clash} are set by scanloc.models.training.fit")
+    matmul = cfg.pop("matmul_precision", None)
+    if matmul is not None:
+        torch.set_float32_matmul_precision(matmul)
+    return {**TRAINER_DEFAULTS, **cfg}
+
+
+def keep_freed_memory() -> bool:
+    """Let glibc keep freed memory for reuse instead of handing it back to the OS at once.
+
+    A training step frees and re-allocates activation blocks of tens of MB. With glibc's
+    defaults each is a fresh mmap whose pages fault in again at every step: the 1D CNN at
+    batch 400 on CPU spent ~40 % of its time in the kernel and trained 1.7x slower. Raising the
+    mmap and trim thresholds to 1 GiB keeps such blocks in the heap. Process-wide; returns
+    False where it does not apply (no glibc).
+    """
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:
+        return False
+    m_trim_threshold, m_mmap_threshold = -1, -3  # from malloc.h
+    return bool(libc.mallopt(m_mmap_threshold, 1 << 30) and libc.mallopt(m_trim_threshold, 1 << 30))
+
+
+def _quiet_lightning() -> None:
+    """Keep Lightning's banner lines (GPU available, TPU...) out of non-interactive logs."""
+    if not sys.stderr.isatty():
+        for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.seed"):
+            logging.getLogger(name).setLevel(logging.WARNING)
+
+
+def fit(
+    *,
+    model_cfg: Mapping[str, Any],
+    dataset_dir: PathLike,
+    out_dir: PathLike,
+    epochs: int,
+    batch_size: int,
+    lr: float,
+    lr_decay: float,
+    seed: int,
+    max_samples: int | None = None,
+    trainer_cfg: Mapping[str, Any] | None = None,
+    init_from: PathLike | None = None,
+    checkpoint_dir: PathLike | None = None,
+    snapshot_epochs: Sequence[int] = (),
+) -> dict[str, Any]:
+    """Train `model_cfg` on the dataset and write out_dir (see the module docstring).
+
+    Returns the metrics written to metrics.json.
+    """
+    if epochs < 1:
+        raise ValueError(f"epochs must be >= 1, got {epochs}")
+    if any(not 1 <= e <= epochs for e in snapshot_epochs):
+        raise ValueError(f"snapshot_epochs must lie in 1..{epochs}, got {list(snapshot_epochs)}")
+    data = open_scan_dataset(dataset_dir)
+    model_cfg = dataset_model_cfg(model_cfg, data)
+    out_dir = Path(out_dir)
+    config = {
+        "model_cfg": model_cfg,
+        "epochs": epochs,
+        "batch_size": batch_size,
+        "lr": lr,
+        "lr_decay": lr_decay,
+        "seed": seed,
+        "max_samples": max_samples,
+        "trainer_cfg": dict(trainer_cfg or {}),
+        "snapshot_epochs": sorted(snapshot_epochs),
+    }
+    kwargs = trainer_arguments(trainer_cfg)
+    counts = split_counts(data, max_samples)
+    _quiet_lightning()
+    keep_freed_memory()
+    with _run_dir(checkpoint_dir, run_key(config, dataset_dir, init_from)) as run_dir:
+        L.seed_everything(seed, workers=True, verbose=False)
+        model = build_model(model_cfg)
+        if init_from is not None:
+            load_weights_(model, init_from)
+        module = PoseRegressor(model, lr, lr_decay)
+        data = ScanDataModule(dataset_dir, batch_size, seed=seed, max_samples=max_samples)
+        # Best first: last.ckpt then holds the best-tracker's state of the same epoch.
+        best_checkpoint = ModelCheckpoint(
+            dirpath=run_dir,
+            filename="best",
+            monitor="val_mae",
+            mode="min",
+            save_top_k=1,
+            save_on_train_epoch_end=True,
+            enable_version_counter=False,
+        )
+        last_checkpoint = ModelCheckpoint(
+            dirpath=run_dir,
+            filename="last",
+            save_top_k=1,
+            save_on_train_epoch_end=True,
+            enable_version_counter=False,
+        )
+        snapshots = _Snapshots(run_dir / "snapshots", snapshot_epochs, model_cfg)
+        interactive = sys.stderr.isatty()
+        trainer = L.Trainer(
+            max_epochs=epochs,
+            logger=False,
+            callbacks=[best_checkpoint, last_checkpoint, snapshots],
+            default_root_dir=run_dir,
+            num_sanity_val_steps=0,
+            check_val_every_n_epoch=1,
+            **{"enable_progress_bar": interactive, "enable_model_summary": interactive, **kwargs},
+        )
+        last = run_dir / "last.ckpt"
+        with warnings.catch_warnings():
+            # Expected when resuming: the folder holds this very run's checkpoints.
+            warnings.filterwarnings("ignore", "Checkpoint directory .* is not empty")
+            trainer.fit(module, datamodule=data, ckpt_path=last if last.is_file() else None)
+        if not trainer.is_global_zero:
+            return {}
+        # Read the results back from the checkpoints: that also works when the training ran
+        # in spawned processes.
+        final = torch.load(last, map_location="cpu", weights_only=True)
+        best = torch.load(run_dir / "best.ckpt", map_location="cpu", weights_only=True)
+        history = final["scanloc"]["history"]
+        if len(history) != epochs:
+            raise RuntimeError(f"{last}: holds {len(history)} epochs, expected {epochs}")
+        metrics = training_metrics(
+            history, final["scanloc"]["epoch_seconds"], counts, count_parameters(model)
+        )
+        out_dir.mkdir(parents=True, exist_ok=True)
+        save_model(out_dir / "model.pt", model_cfg, _net_state(best["state_dict"]))
+        save_model(out_dir / "last.pt", model_cfg, _net_state(final["state_dict"]))
+        for epoch in sorted(snapshot_epochs):
+            name = f"epoch_{epoch}.pt"
+            with atomic_path(out_dir / "snapshots" / name) as tmp:
+                tmp.write_bytes((run_dir / "snapshots" / name).read_bytes())
+        write_history(out_dir / "history.csv", history)
+        write_json(out_dir / "metrics.json", metrics)
+    return metrics
+
+
+def _net_state(lightning_state: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The network's own state dict out of the PoseRegressor's ("model." prefix removed)."""
+    prefix = "model."
+    return {k[len(prefix) :]: v for k, v in lightning_state.items() if k.startswith(prefix)}

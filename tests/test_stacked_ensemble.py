@@ -1,0 +1,105 @@
+"""Members trained together must be the members `fit` trains alone."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from scanloc.models.cnn1d import Cnn1d
+from scanloc.models.mlp import Mlp
+from scanloc.models.pose_regressor import mae_loss
+from scanloc.models.stacked_ensemble import StackedMembers, fit_stacked
+from scanloc.models.training import fit, load_model, read_model_file
+from synthetic_scans import write_synthetic_scans
+
+CNN1D = {"_target_": "scanloc.models.cnn1d.Cnn1d", "pool_size": 8, "dropout": 0.2}
+COMMON = {"epochs": 2, "batch_size": 32, "lr": 0.006, "lr_decay": 0.01, "max_samples": 128}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_torch_thread():
+    """Tiny models train fastest on one thread (and OpenMP barriers do not stall on busy cores)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def scans(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_synthetic_scans(tmp_path_factory.mktemp("scans") / "tiny", count=256, beams=64)
+
+
+def test_each_member_equals_fit_with_its_seed(scans: Path, tmp_path: Path) -> None:
+    seeds = [4, 9, 6]
+    together = [tmp_path / f"member_{k}" for k in range(3)]
+    results = fit_stacked(
+        model_cfg=CNN1D, dataset_dir=scans, out_dirs=together, seeds=seeds, **COMMON
+    )
+    assert [r["stacked_members"] for r in results] == [3, 3, 3]
+    fit(model_cfg=CNN1D, dataset_dir=scans, out_dir=tmp_path / "alone", seed=9, **COMMON)
+    # Same initialisation, data order, dropout masks, Adam state and BatchNorm statistics:
+    # the very same files (dropout included, in the default "loop" mode).
+    for name in ("model.pt", "last.pt", "history.csv"):
+        assert (together[1] / name).read_bytes() == (tmp_path / "alone" / name).read_bytes()
+    alone = json.loads((tmp_path / "alone" / "metrics.json").read_text())
+    assert {k: v for k, v in results[1].items() if k not in ("epoch_s", "stacked_members")} == {
+        k: v for k, v in alone.items() if k != "epoch_s"
+    }
+    # The members are different models.
+    weights = [read_model_file(d / "last.pt")["state_dict"]["head.0.weight"] for d in together]
+    assert not torch.equal(weights[0], weights[1]) and not torch.equal(weights[0], weights[2])
+    assert load_model(together[2] / "model.pt")(torch.rand(4, 64)).shape == (4, 3)
+
+
+def test_vmap_mode_matches_loop_mode_in_one_step() -> None:
+    torch.manual_seed(0)
+    # float64, so that kernel-order rounding (amplified by BatchNorm) stays negligible.
+    for make in (lambda: Mlp(64, dropout=0.0), lambda: Cnn1d(64, pool_size=8)):
+        models = [make().double() for _ in range(3)]
+        xs = [torch.rand(16, 64, dtype=torch.float64) * 7 for _ in range(3)]
+        ys = [torch.randn(16, 3, dtype=torch.float64) for _ in range(3)]
+        outs, grads, stats = {}, {}, {}
+        for mode in ("loop", "vmap"):
+            members = StackedMembers(models, torch.device("cpu"), mode)
+            members.train(True)
+            preds = members.forward_each(xs)
+            sum(mae_loss(p, y) for p, y in zip(preds, ys, strict=True)).backward()
+            outs[mode] = torch.stack(preds).detach()
+            grads[mode] = {k: v.grad for k, v in members.params.items()}
+            stats[mode] = {k: v.clone() for k, v in members.buffers.items()}
+        torch.testing.assert_close(outs["vmap"], outs["loop"], rtol=1e-9, atol=1e-9)
+        for key, grad in grads["loop"].items():
+            torch.testing.assert_close(grads["vmap"][key], grad, rtol=1e-7, atol=1e-9)
+        for key, value in stats["loop"].items():  # BatchNorm running statistics per member
+            torch.testing.assert_close(stats["vmap"][key], value, rtol=1e-9, atol=1e-12)
+        assert all(value.shape[0] == 3 for value in stats["loop"].values())
+
+
+def test_vmap_mode_trains_and_writes_member_files(scans: Path, tmp_path: Path) -> None:
+    dirs = [tmp_path / "a", tmp_path / "b"]
+    cfg = CNN1D | {"dropout": 0.0}
+    results = fit_stacked(
+        model_cfg=cfg, dataset_dir=scans, out_dirs=dirs, seeds=[1, 2], mode="vmap", **COMMON
+    )
+    assert all(r["epochs"] == 2 and r["val_mae"] > 0 for r in results)
+    for d in dirs:
+        assert {p.name for p in d.iterdir()} >= {
+            "model.pt",
+            "last.pt",
+            "history.csv",
+            "metrics.json",
+        }
+
+
+def test_bad_arguments(scans: Path, tmp_path: Path) -> None:
+    args = {"model_cfg": CNN1D, "dataset_dir": scans, **COMMON}
+    with pytest.raises(ValueError, match="one out_dir per seed"):
+        fit_stacked(out_dirs=[tmp_path], seeds=[1, 2], **args)
+    with pytest.raises(ValueError, match="seeds must differ"):
+        fit_stacked(out_dirs=[tmp_path / "a", tmp_path / "b"], seeds=[1, 1], **args)
+    with pytest.raises(ValueError, match="mode"):
+        fit_stacked(out_dirs=[tmp_path], seeds=[1], mode="threads", **args)  # type: ignore[arg-type]
