@@ -99,7 +99,7 @@ def make_artifacts(root: Path) -> Path:
         np.save(folder / "is_val.npy", np.arange(12) >= 10)
         _write_json(
             folder / "meta.json",
-            {"name": name, "map": map_name, "count": 12, "seed": 1, "sensor": SENSOR},
+            {"name": name, "map": {"name": map_name}, "count": 12, "seed": 1, "sensor": SENSOR},
         )
     for row, (start, end, samples) in {
         "mlp": (4.0, 2.5, 20000),

@@ -57,18 +57,25 @@ def train(scans: Path, out_dir: Path, **kwargs) -> dict:
     [
         {"_target_": "scanloc.models.mlp.Mlp", "dropout": 0.0},
         CNN1D,
-        {"_target_": "scanloc.models.cnn2d.Cnn2d", "image_size": 64, "head_dropout": 0.0},
+        {
+            "_target_": "scanloc.models.cnn2d.Cnn2d",
+            "image_size": 64,
+            "dropout": 0.0,
+            "head_dropout": 0,
+        },
     ],
     ids=["mlp", "cnn1d", "cnn2d"],
 )
 def test_each_network_learns_a_tiny_dataset(scans: Path, tmp_path: Path, model_cfg) -> None:
-    metrics = train(scans, tmp_path, model_cfg=model_cfg, epochs=12, lr=0.01, lr_decay=0.001)
+    # The 2D CNN (as in the paper) is the slowest learner: give it more epochs.
+    epochs = 30 if model_cfg["_target_"].endswith("Cnn2d") else 12
+    metrics = train(scans, tmp_path, model_cfg=model_cfg, epochs=epochs, lr=0.01, lr_decay=0.001)
     rows = history(tmp_path)
-    assert [r["epoch"] for r in rows] == list(range(1, 13))
+    assert [r["epoch"] for r in rows] == list(range(1, epochs + 1))
     assert rows[-1]["train_mae"] < 0.45 * rows[0]["train_mae"]
-    updates = 12 * len(batch_slices(metrics["train_samples"], 32))
+    updates = epochs * len(batch_slices(metrics["train_samples"], 32))
     assert rows[-1]["lr"] == pytest.approx(0.01 / (1 + 0.001 * updates))
-    assert metrics["epochs"] == 12 and metrics["samples"] == 128
+    assert metrics["epochs"] == epochs and metrics["samples"] == 128
     assert metrics["best_val_mae"] == min(r["val_mae"] for r in rows)
     assert metrics["val_mae"] == rows[-1]["val_mae"]
 

@@ -153,9 +153,10 @@ class StackedMembers:
         return list(stacked(self.params, self.buffers, torch.stack(list(xs))).unbind(0))
 
     def backward_each(
-        self, batches: Sequence[tuple[Tensor, Tensor]], rng: _RngStreams
+        self, batches: Sequence[tuple[Tensor, Tensor]], rng: _RngStreams | None = None
     ) -> list[Tensor]:
-        """Forward and backward pass of member k on batches[k]; returns the predictions."""
+        """Forward and backward pass of member k on batches[k] (with member k's RNG stream, if
+        given); returns the predictions."""
         if self.mode == "vmap":
             preds = self._vmapped([x for x, _ in batches])
             losses = [mae_loss(p, y) for p, (_, y) in zip(preds, batches, strict=True)]
@@ -163,9 +164,11 @@ class StackedMembers:
             return [p.detach() for p in preds]
         preds = []
         for k, (x, y) in enumerate(batches):
-            rng.swap_in(k)
+            if rng is not None:
+                rng.swap_in(k)
             pred = self._call(self.member_params[k], self.member_buffers[k], x)
-            rng.swap_out(k)
+            if rng is not None:
+                rng.swap_out(k)
             mae_loss(pred, y).backward()
             preds.append(pred.detach())
         return preds

@@ -217,12 +217,18 @@ def load_tables(root: Path, steps: int) -> dict[str, pd.DataFrame]:
     return tables
 
 
+def dataset_map_name(meta: Mapping[str, Any]) -> str:
+    """The map a dataset was taken on: meta.json's `map` is {"name": ..., ...} (or a bare name)."""
+    entry = meta.get("map", "?")
+    return str(entry.get("name", "?")) if isinstance(entry, Mapping) else str(entry)
+
+
 def find_dataset(root: Path, map_name: str) -> Path | None:
     """The smallest dataset (then first by name) whose meta.json says it was taken on `map_name`."""
     found = []
     for meta_path in sorted((root / "data" / "scans").glob("*/meta.json")):
         meta = read_json(meta_path)
-        if meta.get("map") == map_name:
+        if dataset_map_name(meta) == map_name:
             found.append((int(meta.get("count", 0)), meta_path.parent.name, meta_path.parent))
     return min(found)[2] if found else None
 
@@ -342,7 +348,7 @@ def maps_section(b: _Builder) -> tuple[Section, dict[str, OccupancyGrid]]:
         dataset_rows.append(
             [
                 meta_path.parent.name,
-                str(meta.get("map", "?")),
+                dataset_map_name(meta),
                 _num(meta.get("count")),
                 f"{100 * float(np.mean(is_val)):.1f} %",
                 _num(meta.get("seed")),

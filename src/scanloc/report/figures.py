@@ -297,15 +297,16 @@ def plot_uncertainty(
 def rasterize_scan(
     ranges: np.ndarray, angles: np.ndarray, size: int, max_range: float
 ) -> np.ndarray:
-    """Paper eq. 1–4: x = sin(α)·r, y = cos(α)·r, pixel = round(coord·size/(2·max) + size/2);
-    a binary (size, size) image indexed [x pixel, y pixel] (row = x, column = y).
+    """The binary (size, size) image the 2D CNN sees for one scan (paper eq. 1–4), made by the
+    network's own rasteriser so the figure shows exactly its input."""
+    import torch
 
-    For the figure only, in numpy so that building the report does not need torch.
-    """
-    scale = size / (2.0 * max_range)
-    px = np.rint(np.sin(angles) * ranges * scale + size / 2).astype(np.int64)
-    py = np.rint(np.cos(angles) * ranges * scale + size / 2).astype(np.int64)
-    inside = (px >= 0) & (px < size) & (py >= 0) & (py < size)
-    image = np.zeros((size, size), dtype=np.uint8)
-    image[px[inside], py[inside]] = 1
-    return image
+    from scanloc.data.rasterize import rasterize_scans
+
+    image = rasterize_scans(
+        torch.as_tensor(ranges, dtype=torch.float32)[None],
+        torch.as_tensor(angles, dtype=torch.float32),
+        size=size,
+        max_range=max_range,
+    )
+    return image[0, 0].numpy().astype(np.uint8)

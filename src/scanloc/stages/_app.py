@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -15,6 +16,10 @@ from omegaconf import DictConfig, OmegaConf
 from scanloc.io import write_json
 
 TIMING_DIR = Path("reports/timing")
+
+# Lightning 2.6 on torch 2.13 warns about a torch-internal deprecation on every run; it is
+# not actionable here and would bury the stages' own messages.
+warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
 
 
 def conf_dir() -> str:

@@ -79,8 +79,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
             checkpoint_dir=Path(cfg.checkpoint_dir),
             **common,
         )
-    write_json(out_dir / "config.json", run_config(cfg))
-    write_json(metrics_path, metrics)
+    if metrics:  # empty on the non-zero ranks of a multi-process (DDP) run: rank 0 writes
+        write_json(out_dir / "config.json", run_config(cfg))
+        write_json(metrics_path, metrics)
     return metrics
 
 
