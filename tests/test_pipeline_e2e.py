@@ -73,13 +73,17 @@ def dvc(cwd: Path, *args: str, timeout: int = 1500) -> subprocess.CompletedProce
 
 
 def lock_outs(repo: Path, prefixes: tuple[str, ...]) -> dict[str, str]:
-    """Output path -> md5 of the stages whose names start with one of `prefixes`."""
+    """Data output path -> md5 of the stages whose names start with one of `prefixes`.
+
+    Wall-time metrics (reports/timing/) are outputs too but measure the machine, not the data.
+    """
     lock = yaml.safe_load((repo / "dvc.lock").read_text())
     return {
         out["path"]: out["md5"]
         for name, stage in lock["stages"].items()
         if name.startswith(prefixes)
         for out in stage.get("outs", [])
+        if out["path"].startswith("data/")
     }
 
 
