@@ -15,6 +15,7 @@ from scanloc.models.cnn1d import Cnn1d
 from scanloc.models.cnn2d import Cnn2d
 from scanloc.models.keras_init import conv_fans, keras_init_
 from scanloc.models.mlp import Mlp
+from scanloc.models.pose_output import PoseOutput
 
 
 def trainable(model: nn.Module) -> int:
@@ -149,6 +150,34 @@ def test_cnn1d_equals_the_textbook_layer_order(channels_last: bool) -> None:
     torch.testing.assert_close(ours, reference, rtol=1e-10, atol=1e-10)
     for got, want in zip(grads, (p.grad for p in model.parameters()), strict=True):
         torch.testing.assert_close(got, want, rtol=1e-7, atol=1e-10)
+
+
+def test_cnn1d_activations_stay_channels_last() -> None:
+    """A one-channel input is ambiguous between layouts; unless it is marked channels-last the
+    first convolution answers in NCHW and every step pays two 400 x 64 x 667 layout copies and
+    a mixed-layout ReLU backward (~25 % of a CPU step)."""
+    model = Cnn1d(64, pool_size=2)
+    layouts = []
+    for conv in model.conv:
+        conv.register_forward_hook(lambda _m, inputs, out: layouts.append((inputs[0], out)))
+    model(torch.rand(5, 64))
+    for inp, out in layouts[1:]:
+        assert inp.stride(1) == 1 and out.stride(1) == 1  # channels innermost
+    assert layouts[0][1].stride(1) == 1
+
+
+@pytest.mark.parametrize("model", [Mlp(64), Cnn1d(64, pool_size=2), Cnn2d(64, image_size=64)])
+def test_pose_output_stays_float32_under_bf16_autocast(model: nn.Module) -> None:
+    torch.manual_seed(3)
+    last = [m for m in model.modules() if isinstance(m, nn.Linear)][-1]
+    assert isinstance(last, PoseOutput) and last.out_features == 3
+    x = torch.rand(4, 64) * 7
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        pose = model.eval()(x)
+        hidden = torch.rand(4, last.in_features, dtype=torch.bfloat16)
+        out = last(hidden)
+    assert pose.dtype == torch.float32 and out.dtype == torch.float32
+    torch.testing.assert_close(out, F.linear(hidden.float(), last.weight, last.bias))
 
 
 def test_cnn2d_image_and_layouts_agree() -> None:

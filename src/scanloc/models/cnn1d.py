@@ -8,9 +8,11 @@ Pool size 8 (the author's code; 667 → 83 → 10, 1280 features, 1,040,325 trai
 or 2 (the paper's text). Dropout 0.1 after each pool is Table 1's 20k variant.
 
 Speed (same function, same parameters): each convolution runs as a (1 × 3) Conv2D on a
-channels-last (B, C, 1, L) tensor, which oneDNN trains ~1.15x faster than a plain Conv1D at
-batch 400 on CPU (benchmarks/train_throughput.py); and the second ReLU of each pair runs after
-its max-pool (ReLU and max commute, also in their gradients), on 1/p of the values.
+channels-last (B, C, 1, L) tensor, which oneDNN trains ~1.5x faster than a plain Conv1D at
+batch 400 on CPU (benchmarks/train_throughput.py). The one-channel input is marked
+channels-last by its strides: for C = 1 both layouts look alike, and oneDNN would answer the
+first convolution in NCHW, costing two layout copies per step. The second ReLU of each pair
+runs after its max-pool (ReLU and max commute, also in their gradients), on 1/p of the values.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from scanloc.models.keras_init import Conv1dFans, batch_norm_1d, keras_init_
+from scanloc.models.pose_output import PoseOutput
 
 HEAD_WIDTHS = (512, 512, 64)
 
@@ -44,7 +47,7 @@ def sigmoid_head(in_features: int, dropout: float = 0.0) -> nn.Sequential:
         if dropout > 0:
             layers.append(nn.Dropout(dropout))
         in_features = width
-    layers.append(nn.Linear(in_features, 3))
+    layers.append(PoseOutput(in_features))
     return nn.Sequential(*layers)
 
 
@@ -87,7 +90,7 @@ class Cnn1d(nn.Module):
     def forward(self, ranges: Tensor) -> Tensor:
         x = self.input_norm(ranges.unsqueeze(1)).unsqueeze(2)  # (B, 1, 1, N)
         if self.channels_last:
-            x = x.contiguous(memory_format=torch.channels_last)
+            x = x.as_strided(x.shape, (x.shape[-1], 1, x.shape[-1], 1))
         pool = (1, self.pool_size)
         for first, second in ((0, 1), (2, 3)):
             x = F.relu(self.conv[first](x))
