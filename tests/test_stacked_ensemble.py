@@ -32,14 +32,29 @@ def scans(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_synthetic_scans(tmp_path_factory.mktemp("scans") / "tiny", count=256, beams=64)
 
 
-def test_each_member_equals_fit_with_its_seed(scans: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("precision", ["32-true", "bf16-mixed"])
+def test_each_member_equals_fit_with_its_seed(scans: Path, tmp_path: Path, precision: str) -> None:
     seeds = [4, 9, 6]
     together = [tmp_path / f"member_{k}" for k in range(3)]
+    trainer = {"precision": precision}
     results = fit_stacked(
-        model_cfg=CNN1D, dataset_dir=scans, out_dirs=together, seeds=seeds, **COMMON
+        model_cfg=CNN1D,
+        dataset_dir=scans,
+        out_dirs=together,
+        seeds=seeds,
+        trainer_cfg=trainer,
+        **COMMON,
     )
     assert [r["stacked_members"] for r in results] == [3, 3, 3]
-    fit(model_cfg=CNN1D, dataset_dir=scans, out_dir=tmp_path / "alone", seed=9, **COMMON)
+    assert [r["precision"] for r in results] == [precision] * 3
+    fit(
+        model_cfg=CNN1D,
+        dataset_dir=scans,
+        out_dir=tmp_path / "alone",
+        seed=9,
+        trainer_cfg=trainer,
+        **COMMON,
+    )
     # Same initialisation, data order, dropout masks, Adam state and BatchNorm statistics:
     # the very same files (dropout included, in the default "loop" mode).
     for name in ("model.pt", "last.pt", "history.csv"):
@@ -101,3 +116,5 @@ def test_bad_arguments(scans: Path, tmp_path: Path) -> None:
         fit_stacked(out_dirs=[tmp_path / "a", tmp_path / "b"], seeds=[1, 1], **args)
     with pytest.raises(ValueError, match="mode"):
         fit_stacked(out_dirs=[tmp_path], seeds=[1], mode="threads", **args)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="'16-mixed': fit_stacked trains in 32-true or bf16"):
+        fit_stacked(out_dirs=[tmp_path], seeds=[1], trainer_cfg={"precision": "16-mixed"}, **args)

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 import torch
 
+import scanloc.models.training as training
 from scanloc.data.datamodule import ScanDataModule, batch_slices, epoch_permutation
 from scanloc.models.pose_regressor import HISTORY_COLUMNS, PoseRegressor
-from scanloc.models.training import fit, load_model, predict, read_model_file
+from scanloc.models.training import fit, load_model, predict, read_model_file, resolve_precision
 from synthetic_scans import write_synthetic_scans
 
 CNN1D = {"_target_": "scanloc.models.cnn1d.Cnn1d", "pool_size": 8}
@@ -142,7 +143,7 @@ def test_transfer_starts_from_the_given_weights(scans: Path, tmp_path: Path) -> 
         train(
             scans,
             tmp_path / "bad",
-            model_cfg={"_target_": "scanloc.models.mlp.Mlp"},
+            model_cfg=MLP_NO_DROPOUT,
             init_from=tmp_path / "pre" / "model.pt",
         )
 
@@ -215,3 +216,44 @@ def test_data_parallel_spawn_on_two_cpu_processes(scans: Path, tmp_path: Path) -
     metrics = train(scans, tmp_path, epochs=2, trainer_cfg=trainer_cfg)
     assert metrics["epochs"] == 2 and len(history(tmp_path)) == 2
     assert load_model(tmp_path / "model.pt")(torch.rand(3, 64)).shape == (3, 3)
+
+
+def test_auto_precision_is_bf16_only_where_the_hardware_has_it(monkeypatch) -> None:
+    assert resolve_precision("32-true", "cpu") == "32-true"
+    assert resolve_precision("bf16-mixed", "cpu") == "bf16-mixed"
+    for native, expected in ((True, "bf16-mixed"), (False, "32-true")):
+        monkeypatch.setattr(training, "cpu_has_native_bf16", lambda native=native: native)
+        assert resolve_precision("auto", "cpu") == expected
+        assert training.trainer_arguments({"precision": "auto"})["precision"] == expected
+    if not torch.cuda.is_available():
+        assert resolve_precision("auto", "gpu") == "32-true"
+
+
+def test_fit_records_its_resolved_precision(scans: Path, tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr(training, "cpu_has_native_bf16", lambda: False)
+    metrics = train(scans, tmp_path, trainer_cfg={"precision": "auto"})
+    assert metrics["precision"] == "32-true"
+    assert json.loads((tmp_path / "metrics.json").read_text())["precision"] == "32-true"
+
+
+def test_compile_option_is_checked(scans: Path, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="compile: expected true or false, got 'yes'"):
+        train(scans, tmp_path, trainer_cfg={"compile": "yes"})
+
+
+MLP_NO_DROPOUT = {"_target_": "scanloc.models.mlp.Mlp", "dropout": 0.0}  # compiled dropout
+# draws its masks from another generator than eager dropout
+
+
+@pytest.mark.slow
+def test_compiled_training_matches_eager(scans: Path, tmp_path: Path) -> None:
+    eager = train(scans, tmp_path / "eager", model_cfg=MLP_NO_DROPOUT)
+    compiled = train(
+        scans,
+        tmp_path / "compiled",
+        model_cfg=MLP_NO_DROPOUT,
+        trainer_cfg={"compile": True},
+    )
+    assert compiled["val_mae"] == pytest.approx(eager["val_mae"], rel=1e-4)
+    state = read_model_file(tmp_path / "compiled" / "last.pt")["state_dict"]
+    assert "layers.0.weight" in state  # keys as without compilation

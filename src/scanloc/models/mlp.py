@@ -10,6 +10,7 @@ from __future__ import annotations
 from torch import Tensor, nn
 
 from scanloc.models.keras_init import batch_norm_1d, keras_init_
+from scanloc.models.pose_output import PoseOutput
 
 
 class Mlp(nn.Module):
@@ -33,7 +34,7 @@ class Mlp(nn.Module):
             if rate > 0:
                 layers.append(nn.Dropout(rate))
             in_features = width
-        layers.append(nn.Linear(in_features, 3))
+        layers.append(PoseOutput(in_features))
         self.layers = nn.Sequential(*layers)
         keras_init_(self)
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 import copy
 import os
 import time
-import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -43,6 +42,7 @@ from scanloc.models.pose_regressor import epoch_row, mae_loss, make_adam, pose_e
 from scanloc.models.training import (
     PathLike,
     build_model,
+    compile_requested,
     count_parameters,
     dataset_model_cfg,
     keep_freed_memory,
@@ -55,13 +55,18 @@ from scanloc.models.training import (
 Mode = Literal["loop", "vmap"]
 
 
-def _setup_torch(trainer_cfg: Mapping[str, Any] | None, device: str | None) -> torch.device:
-    """The training device, and torch configured as fit's Trainer would configure it."""
-    args = trainer_arguments(trainer_cfg)  # also applies matmul_precision
-    if str(args.get("precision", "32-true")) not in ("32", "32-true"):
-        warnings.warn(
-            f"fit_stacked trains in float32; trainer precision {args['precision']!r} is ignored",
-            stacklevel=3,
+def _setup_torch(
+    trainer_cfg: Mapping[str, Any] | None, device: str | None
+) -> tuple[torch.device, bool]:
+    """The training device and whether to train under bf16 autocast, with torch configured as
+    fit's Trainer would configure it."""
+    if compile_requested(trainer_cfg):
+        raise ValueError("trainer compile: true is not supported by fit_stacked")
+    args = trainer_arguments(trainer_cfg)  # also applies matmul_precision, resolves "auto"
+    precision = args["precision"]
+    if precision not in ("32", "32-true", "bf16-mixed"):
+        raise ValueError(
+            f"trainer precision {precision!r}: fit_stacked trains in 32-true or bf16-mixed"
         )
     accelerator = str(args.get("accelerator", "cpu"))
     if device is None:
@@ -73,7 +78,7 @@ def _setup_torch(trainer_cfg: Mapping[str, Any] | None, device: str | None) -> t
     if deterministic:
         os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # as Lightning does
         torch.use_deterministic_algorithms(True, warn_only=deterministic == "warn")
-    return torch.device(device)
+    return torch.device(device), precision == "bf16-mixed"
 
 
 class _RngStreams:
@@ -108,10 +113,13 @@ class StackedMembers:
     right after its forward pass, so only one member's activations are alive at a time.
     """
 
-    def __init__(self, models: Sequence[nn.Module], device: torch.device, mode: Mode) -> None:
+    def __init__(
+        self, models: Sequence[nn.Module], device: torch.device, mode: Mode, bf16: bool = False
+    ) -> None:
         if mode not in ("loop", "vmap"):
             raise ValueError(f"mode must be 'loop' or 'vmap', got {mode!r}")
         self.mode, self.size = mode, len(models)
+        self.device, self.bf16 = device, bf16
         params, buffers = stack_module_state(list(models))
         self.params = {k: v.detach().to(device) for k, v in params.items()}
         self.buffers = {k: v.to(device) for k, v in buffers.items()}
@@ -146,7 +154,9 @@ class StackedMembers:
                 value.grad = None
 
     def _call(self, params: dict, buffers: dict, x: Tensor) -> Tensor:
-        return functional_call(self.template, (params, buffers), (x,))
+        # Forward passes under autocast as Lightning's bf16-mixed runs them; backward outside.
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
+            return functional_call(self.template, (params, buffers), (x,))
 
     def _vmapped(self, xs: Sequence[Tensor]) -> list[Tensor]:
         stacked = vmap(self._call, in_dims=(0, 0, 0), randomness="different")
@@ -217,7 +227,7 @@ def fit_stacked(
     """Train len(seeds) members of `model_cfg` together; member k writes into out_dirs[k].
 
     trainer_cfg: conf/trainer/*.yaml; its accelerator picks the device (unless `device` is
-    given), deterministic and matmul_precision apply; training is always float32.
+    given), deterministic, matmul_precision and precision (32-true or bf16-mixed) apply.
     Returns each member's metrics (as written to its metrics.json).
     """
     if len(out_dirs) != len(seeds) or not seeds:
@@ -226,7 +236,7 @@ def fit_stacked(
         raise ValueError(f"seeds must differ (else members are identical): {list(seeds)}")
     if epochs < 1:
         raise ValueError(f"epochs must be >= 1, got {epochs}")
-    target = _setup_torch(trainer_cfg, device)
+    target, bf16 = _setup_torch(trainer_cfg, device)
     keep_freed_memory()
     data = ScanDataModule(dataset_dir, batch_size, max_samples=max_samples, device=target)
     model_cfg = dataset_model_cfg(model_cfg, open_scan_dataset(dataset_dir))
@@ -236,7 +246,7 @@ def fit_stacked(
         L.seed_everything(seed, workers=True, verbose=False)
         models.append(build_model(model_cfg))
         rng.capture()
-    members = StackedMembers(models, target, mode)
+    members = StackedMembers(models, target, mode, bf16)
     optimizer = make_adam(list(members.params.values()), lr)
     schedule = keras_decay(optimizer, lr_decay)
     data.setup("fit")
@@ -274,6 +284,7 @@ def fit_stacked(
     results = []
     for k, out_dir in enumerate(map(Path, out_dirs)):
         metrics = training_metrics(histories[k], seconds, counts, count_parameters(models[k]))
+        metrics["precision"] = "bf16-mixed" if bf16 else "32-true"
         metrics["stacked_members"] = len(seeds)
         out_dir.mkdir(parents=True, exist_ok=True)
         save_model(out_dir / "model.pt", model_cfg, best[k][1])

@@ -424,7 +424,9 @@ def table1_section(b: _Builder, runs: Mapping[str, Run]) -> Section:
         Para(
             f"The paper's Table 1 beside the parameters as run in profile '{profile}' "
             "(models/<row>/config.json). The profile scales epochs and samples down to fit "
-            "its time budget; the last two rows give the factor."
+            "its time budget; the scale rows give the factor. Precision bf16-mixed is bf16 "
+            "autocast with a float32 output layer (trainer precision auto, on CPUs with bf16 "
+            "instructions; docs/benchmarks.md shows it within float32's seed-to-seed spread)."
         )
     )
     header = ["parameter"]
@@ -446,6 +448,10 @@ def table1_section(b: _Builder, runs: Mapping[str, Run]) -> Section:
         for row in present:
             line += ["", str(runs[row].config.get(key, "–"))]
         rows.append(line)
+    line = ["precision"]  # the paper's Keras trained in float32
+    for row in present:
+        line += ["32-true", str(runs[row].metrics.get("precision", "–"))]
+    rows.append(line)
     section.blocks.append(Table(header, rows))
     transfer = [t for t in TRANSFER if t in runs]
     if transfer:
