@@ -7,7 +7,8 @@ Also timed once each: the vectorised mode (mode="vmap") and the sequential Light
 that the pipeline would otherwise run per member.
 
 Synthetic 667-beam scans in the dataset format, the paper's ensemble network (1D CNN, pool 8,
-no dropout) and batch size (400). Last line: one JSON object of the figures (medians).
+no dropout) and batch size (400), the pipeline's CPU trainer config
+(its precision). Last line: one JSON object of the figures (medians).
 """
 
 from __future__ import annotations
@@ -24,7 +25,12 @@ import torch
 
 from scanloc.models.stacked_ensemble import fit_stacked
 from scanloc.models.training import fit, read_model_file
-from train_throughput import logging_off, write_synthetic_dataset
+from train_throughput import (
+    logging_off,
+    pipeline_precision,
+    pipeline_trainer_cfg,
+    write_synthetic_dataset,
+)
 
 MODEL_CFG = {"_target_": "scanloc.models.cnn1d.Cnn1d", "pool_size": 8, "dropout": 0.0}
 
@@ -69,6 +75,7 @@ def main() -> None:
             "batch_size": args.batch,
             "lr": 0.006,
             "lr_decay": 0.0,
+            "trainer_cfg": pipeline_trainer_cfg(),
         }
         together = [root / "together" / f"member_{k}" for k in range(args.members)]
         alone = [root / "alone" / f"member_{k}" for k in range(args.members)]
@@ -107,6 +114,7 @@ def main() -> None:
             extras["vmap_speedup_vs_sequential"] = round(sequential_med / vmap_s, 3)
             extras["speedup_vs_lightning_fit"] = round(lightning_s / together_med, 3)
     result = {
+        "precision": pipeline_precision(),
         "speedup_vs_sequential": round(sequential_med / together_med, 3),
         "max_param_diff": diff,
         "together_s": round(together_med, 3),

@@ -1,15 +1,20 @@
-"""Training throughput of the paper's 1D CNN (batch 400) through scanloc's data path.
+"""Training throughput of the paper's 1D CNN (batch 400): scanloc's training path vs a plain one.
 
 Compared in the same run, same model, same batch, same Lightning loop:
-- ours: ScanDataModule (data resident in device memory, one gather per batch);
-- baseline: torch.utils.data.DataLoader over a per-sample Dataset reading the memory map;
-- ours with the plain (contiguous Conv1D) layout, to show what the channels-last layout gives;
-- ours before `keep_freed_memory` (glibc's default allocator thresholds), measured first
-  because that setting cannot be undone; the other three run with it, as `fit` does.
-Also measured: this machine's fp32 matmul rate (median GFLOP/s of large square matmuls) and
-the model's FLOPs per training sample (forward + backward, counted by FlopCounterMode on a real
-training step), giving the fraction of the matmul ceiling the training reaches; and the data
-paths alone (batches per second without the model).
+- ours: ScanDataModule (data resident in device memory, one gather per batch) at the precision
+  the pipeline trains in (conf/trainer/cpu.yaml: `auto` = bf16 autocast where the CPU has bf16
+  dot-product instructions, float32 elsewhere);
+- baseline: torch.utils.data.DataLoader over a per-sample Dataset reading the memory map, in
+  Lightning's default float32: the textbook loop;
+- ours_fp32: our data path in float32, which splits the speed-up into its two causes
+  (data_path_speedup = ours_fp32 / baseline, precision_speedup = ours / ours_fp32);
+- ours with the plain (contiguous Conv1D) layout, float32, to show what channels-last gives;
+- ours before `keep_freed_memory` (glibc's default allocator thresholds), float32, measured
+  first because that setting cannot be undone; the others run with it, as `fit` does.
+Also measured: this machine's matmul rate in float32 and bf16 (median GFLOP/s of large square
+matmuls) and the model's FLOPs per training sample (forward + backward, counted by
+FlopCounterMode on a real training step), giving the fraction of the matmul ceiling (of the
+precision trained in) that the training reaches; and the data paths alone (no model).
 
 Synthetic data in the dataset format (data/scans/<name>/) is written to a temporary folder.
 Last line: one JSON object of the figures (medians over epochs).
@@ -29,15 +34,17 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import torch
+from omegaconf import OmegaConf
 from torch.utils.data import DataLoader, Dataset
 from torch.utils.flop_counter import FlopCounterMode
 
 from scanloc.data.datamodule import ScanDataModule
 from scanloc.models.cnn1d import Cnn1d
 from scanloc.models.pose_regressor import PoseRegressor, mae_loss
-from scanloc.models.training import keep_freed_memory
+from scanloc.models.training import keep_freed_memory, trainer_arguments
 
 BEAMS = 667
+PIPELINE_TRAINER = Path(__file__).resolve().parents[1] / "conf" / "trainer" / "cpu.yaml"
 
 
 def write_synthetic_dataset(path: Path, count: int, beams: int = BEAMS, seed: int = 0) -> Path:
@@ -94,9 +101,9 @@ class EpochTimer(L.Callback):
         self.seconds.append(time.perf_counter() - self._start)
 
 
-def matmul_gflops(n: int, repeats: int) -> float:
-    """Median fp32 matmul rate of n×n matrices (GFLOP/s)."""
-    a, b = torch.randn(n, n), torch.randn(n, n)
+def matmul_gflops(n: int, repeats: int, dtype: torch.dtype = torch.float32) -> float:
+    """Median matmul rate of n×n matrices of `dtype` (GFLOP/s)."""
+    a, b = torch.randn(n, n, dtype=dtype), torch.randn(n, n, dtype=dtype)
     torch.matmul(a, b)
     times = []
     for _ in range(repeats):
@@ -116,7 +123,17 @@ def train_flops_per_sample(batch: int) -> float:
     return counter.get_total_flops() / batch
 
 
-def train_epochs(train_data, channels_last: bool, epochs: int) -> list[float]:
+def pipeline_trainer_cfg() -> dict:
+    """The pipeline's CPU trainer config (conf/trainer/cpu.yaml)."""
+    return OmegaConf.to_container(OmegaConf.load(PIPELINE_TRAINER))
+
+
+def pipeline_precision() -> str:
+    """The precision `fit` trains in under the pipeline's CPU trainer config, on this machine."""
+    return trainer_arguments(pipeline_trainer_cfg())["precision"]
+
+
+def train_epochs(train_data, channels_last: bool, epochs: int, precision: str) -> list[float]:
     """Wall seconds of each training epoch (Lightning loop, no validation, no checkpoints)."""
     L.seed_everything(0, verbose=False)
     module = PoseRegressor(Cnn1d(BEAMS, channels_last=channels_last), lr=0.006)
@@ -124,6 +141,7 @@ def train_epochs(train_data, channels_last: bool, epochs: int) -> list[float]:
     trainer = L.Trainer(
         accelerator="cpu",
         devices=1,
+        precision=precision,
         max_epochs=epochs,
         logger=False,
         enable_checkpointing=False,
@@ -161,11 +179,15 @@ def main() -> None:
     threads = args.threads
     torch.set_num_threads(threads)
     logging_off()
-    gflops = matmul_gflops(512 if args.quick else 3072, 3 if args.quick else 15)
+    precision = pipeline_precision()
+    size, repeats = (512, 3) if args.quick else (3072, 15)
+    gflops = {"32-true": matmul_gflops(size, repeats)}
+    if precision == "bf16-mixed":
+        gflops[precision] = matmul_gflops(size, repeats, torch.bfloat16)
     flops = train_flops_per_sample(args.batch)
     print(
-        f"threads {threads}; matmul {gflops:.1f} GFLOP/s; 1D CNN training {flops / 1e6:.1f} "
-        f"MFLOP/sample",
+        f"threads {threads}; matmul GFLOP/s {gflops}; 1D CNN training {flops / 1e6:.1f} "
+        f"MFLOP/sample; the pipeline trains in {precision}",
         flush=True,
     )
     with tempfile.TemporaryDirectory(prefix="scanloc-bench-") as tmp:
@@ -175,18 +197,19 @@ def main() -> None:
         baseline = DataLoader(per_sample, batch_size=args.batch, shuffle=True, num_workers=0)
         train_n = len(per_sample)
         rates: dict[str, float] = {}
-        for name, data, layout in (
-            ("ours_default_malloc", ours, True),
-            ("ours", ours, True),
-            ("dataloader", baseline, True),
-            ("ours_contiguous", ours, False),
+        for name, data, layout, run_precision in (
+            ("ours_default_malloc", ours, True, "32-true"),
+            ("ours", ours, True, precision),
+            ("dataloader", baseline, True, "32-true"),
+            ("ours_fp32", ours, True, "32-true"),
+            ("ours_contiguous", ours, False, "32-true"),
         ):
             if name == "ours":
                 keep_freed_memory()
-            seconds = train_epochs(data, layout, epochs)
+            seconds = train_epochs(data, layout, epochs, run_precision)
             rates[name] = train_n / statistics.median(seconds)
             print(
-                f"{name:16s} {rates[name]:8.1f} samples/s  (epochs: "
+                f"{name:20s} {rates[name]:8.1f} samples/s  ({run_precision}; epochs: "
                 f"{', '.join(f'{s:.2f}' for s in seconds)} s)",
                 flush=True,
             )
@@ -199,17 +222,24 @@ def main() -> None:
             flush=True,
         )
     achieved = rates["ours"] * flops / 1e9
+    achieved_fp32 = rates["ours_fp32"] * flops / 1e9
     result = {
         "samples_per_s": round(rates["ours"], 2),
         "baseline_samples_per_s": round(rates["dataloader"], 2),
         "speedup_vs_dataloader": round(rates["ours"] / rates["dataloader"], 3),
+        "precision": precision,
+        "data_path_speedup": round(rates["ours_fp32"] / rates["dataloader"], 3),
+        "precision_speedup": round(rates["ours"] / rates["ours_fp32"], 3),
+        "fp32_samples_per_s": round(rates["ours_fp32"], 2),
         "contiguous_layout_samples_per_s": round(rates["ours_contiguous"], 2),
         "default_malloc_samples_per_s": round(rates["ours_default_malloc"], 2),
-        "layout_speedup": round(rates["ours"] / rates["ours_contiguous"], 3),
-        "matmul_gflops": round(gflops, 2),
+        "layout_speedup": round(rates["ours_fp32"] / rates["ours_contiguous"], 3),
+        "matmul_gflops": round(gflops[precision], 2),
+        "fp32_matmul_gflops": round(gflops["32-true"], 2),
         "train_mflop_per_sample": round(flops / 1e6, 2),
         "achieved_gflops": round(achieved, 2),
-        "ceiling_fraction": round(achieved / gflops, 3),
+        "ceiling_fraction": round(achieved / gflops[precision], 3),
+        "fp32_ceiling_fraction": round(achieved_fp32 / gflops["32-true"], 3),
         "loader_only_speedup": round(loader_base / loader_ours, 1),
         "threads": threads,
         "train_samples": train_n,

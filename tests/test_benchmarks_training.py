@@ -29,6 +29,7 @@ BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
             },
         ),
         ("ensemble_train.py", {"speedup_vs_sequential", "max_param_diff"}),
+        ("precision_noise.py", {"fp32_mean", "bf16_mean", "fp32_seed_std", "epoch_speedup"}),
     ],
 )
 def test_quick_run_prints_figures(
