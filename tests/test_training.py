@@ -143,7 +143,7 @@ def test_transfer_starts_from_the_given_weights(scans: Path, tmp_path: Path) -> 
         train(
             scans,
             tmp_path / "bad",
-            model_cfg=MLP_NO_DROPOUT,
+            model_cfg={"_target_": "scanloc.models.mlp.Mlp"},
             init_from=tmp_path / "pre" / "model.pt",
         )
 

@@ -426,7 +426,8 @@ def table1_section(b: _Builder, runs: Mapping[str, Run]) -> Section:
             "(models/<row>/config.json). The profile scales epochs and samples down to fit "
             "its time budget; the scale rows give the factor. Precision bf16-mixed is bf16 "
             "autocast with a float32 output layer (trainer precision auto, on CPUs with bf16 "
-            "instructions; docs/benchmarks.md shows it within float32's seed-to-seed spread)."
+            "instructions; in docs/benchmarks.md its validation errors are not "
+            "distinguishable from float32's seed-to-seed spread)."
         )
     )
     header = ["parameter"]
