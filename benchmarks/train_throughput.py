@@ -39,6 +39,7 @@ from torch.utils.data import DataLoader, Dataset
 from torch.utils.flop_counter import FlopCounterMode
 
 from scanloc.data.datamodule import ScanDataModule
+from scanloc.data.scan_dataset import save_scan_dataset
 from scanloc.models.cnn1d import Cnn1d
 from scanloc.models.pose_regressor import PoseRegressor, mae_loss
 from scanloc.models.training import keep_freed_memory, trainer_arguments
@@ -50,25 +51,14 @@ PIPELINE_TRAINER = Path(__file__).resolve().parents[1] / "conf" / "trainer" / "c
 def write_synthetic_dataset(path: Path, count: int, beams: int = BEAMS, seed: int = 0) -> Path:
     """Random poses and ranges in the scan-dataset format (10 % validation)."""
     rng = np.random.default_rng(seed)
-    path.mkdir(parents=True, exist_ok=True)
     poses = np.column_stack(
         [rng.uniform(0, 15, count), rng.uniform(0, 15, count), rng.uniform(-np.pi, np.pi, count)]
     )
-    ranges = rng.uniform(0.02, 7.0, (count, beams)).astype(np.float32)
+    ranges = rng.uniform(0.02, 7.0, (count, beams))
     is_val = np.zeros(count, dtype=bool)
     is_val[rng.permutation(count)[: count // 10]] = True
-    np.save(path / "ranges.npy", ranges)
-    np.save(path / "poses.npy", poses)
-    np.save(path / "is_val.npy", is_val)
-    meta = {
-        "format": {"name": "scanloc.scans", "version": 1},
-        "count": count,
-        "seed": seed,
-        "sensor": {"num_beams": beams},
-        "split": {"train": count - count // 10, "val": count // 10},
-    }
-    (path / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-    return path
+    meta = {"seed": seed, "sensor": {"num_beams": beams}}
+    return save_scan_dataset(path, ranges, poses, is_val, meta)
 
 
 class PerSampleScans(Dataset):
@@ -133,10 +123,14 @@ def pipeline_precision() -> str:
     return trainer_arguments(pipeline_trainer_cfg())["precision"]
 
 
-def train_epochs(train_data, channels_last: bool, epochs: int, precision: str) -> list[float]:
+def train_epochs(
+    train_data, channels_last: bool, epochs: int, precision: str, compile_model: bool = False
+) -> list[float]:
     """Wall seconds of each training epoch (Lightning loop, no validation, no checkpoints)."""
     L.seed_everything(0, verbose=False)
     module = PoseRegressor(Cnn1d(BEAMS, channels_last=channels_last), lr=0.006)
+    if compile_model:
+        module.model.compile()  # as fit does for trainer `compile: true`
     timer = EpochTimer()
     trainer = L.Trainer(
         accelerator="cpu",
@@ -172,6 +166,11 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=20000)
     parser.add_argument("--epochs", type=int, default=2)
     parser.add_argument("--batch", type=int, default=400)
+    parser.add_argument(
+        "--compile",
+        action="store_true",
+        help="also time ours under torch.compile (epochs after the first, which compiles)",
+    )
     args = parser.parse_args()
     if args.quick:
         args.samples, args.epochs, args.batch = 300, 1, 100
@@ -213,6 +212,15 @@ def main() -> None:
                 f"{', '.join(f'{s:.2f}' for s in seconds)} s)",
                 flush=True,
             )
+        if args.compile:
+            seconds = train_epochs(ours, True, epochs + 1, precision, compile_model=True)
+            rates["ours_compiled"] = train_n / statistics.median(seconds[1:])
+            compile_extra_s = seconds[0] - statistics.median(seconds[1:])
+            print(
+                f"{'ours_compiled':20s} {rates['ours_compiled']:8.1f} samples/s  ({precision}, "
+                f"torch.compile; epochs: {', '.join(f'{s:.2f}' for s in seconds)} s)",
+                flush=True,
+            )
         ours.setup("fit")
         loader_ours = statistics.median(loader_seconds(ours.train_batches()) for _ in range(3))
         loader_base = statistics.median(loader_seconds(baseline) for _ in range(3))
@@ -246,6 +254,10 @@ def main() -> None:
         "batch_size": args.batch,
         "epochs": epochs,
     }
+    if args.compile:
+        result["compiled_samples_per_s"] = round(rates["ours_compiled"], 2)
+        result["compile_speedup"] = round(rates["ours_compiled"] / rates["ours"], 3)
+        result["compile_first_epoch_extra_s"] = round(compile_extra_s, 1)
     print(json.dumps(result))
 
 

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
+
+from scanloc.data.scan_dataset import save_scan_dataset
 
 
 def write_synthetic_scans(
@@ -25,17 +26,5 @@ def write_synthetic_scans(
     )
     is_val = np.zeros(count, dtype=bool)
     is_val[rng.permutation(count)[: round(val_fraction * count)]] = True
-    path.mkdir(parents=True, exist_ok=True)
-    np.save(path / "ranges.npy", np.clip(ranges, 0.02, 7.0).astype(np.float32))
-    np.save(path / "poses.npy", poses)
-    np.save(path / "is_val.npy", is_val)
-    n_val = int(is_val.sum())
-    meta = {
-        "format": {"name": "scanloc.scans", "version": 1},
-        "count": count,
-        "seed": seed,
-        "sensor": {"num_beams": beams},
-        "split": {"train": count - n_val, "val": n_val},
-    }
-    (path / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-    return path
+    meta = {"seed": seed, "sensor": {"num_beams": beams}}
+    return save_scan_dataset(path, np.clip(ranges, 0.02, 7.0), poses, is_val, meta)

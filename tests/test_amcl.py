@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -211,15 +208,8 @@ def test_bad_input_is_rejected_clearly() -> None:
         amcl.initialize_pose(np.zeros(3), -np.eye(3))
 
 
-def test_benchmark_quick_run_reports_its_figures() -> None:
-    out = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "amcl.py"), "--quick"],
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    figures = json.loads(out.stdout.strip().splitlines()[-1])
+def test_benchmark_quick_run_reports_its_figures(quick_benchmark) -> None:
+    figures = quick_benchmark("amcl.py")
     for key in ("hz_1k", "hz_5k", "hz_10k", "reference_hz_10k", "beam_evals_per_s"):
         assert figures[key] > 0, key
     assert figures["weights_max_rel_diff"] < 1e-9  # the compiled and numpy models agree

@@ -411,26 +411,21 @@ def test_scale_files_only_set_existing_keys(profile: str):
 # --- 3. the stage app itself prints the paper's numbers --------------------------------------
 
 
-def test_train_app_prints_the_paper_config():
+def run_in_repo(command: list[str]) -> str:
+    """Stdout of `command` run from the repository root with this venv's tools first on PATH
+    and the repository's own conf/ (no SCANLOC_CONF); fails the test if it fails."""
     env = {k: v for k, v in os.environ.items() if k != "SCANLOC_CONF"}
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
     result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "scanloc.stages.train",
-            "--cfg",
-            "job",
-            "profile=paper",
-            "experiment=cnn1d_200k",
-        ],
-        cwd=REPO_ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
+        command, cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=120
     )
     assert result.returncode == 0, result.stderr
-    cfg = yaml.safe_load(result.stdout)
+    return result.stdout
+
+
+def test_train_app_prints_the_paper_config():
+    command = [sys.executable, "-m", "scanloc.stages.train", "--cfg", "job"]
+    cfg = yaml.safe_load(run_in_repo([*command, "profile=paper", "experiment=cnn1d_200k"]))
     assert cfg["experiment"]["epochs"] == 400
     assert cfg["experiment"]["batch_size"] == 400
     assert cfg["model"]["lr"] == pytest.approx(0.006)
@@ -513,18 +508,7 @@ def test_dvc_declares_what_each_stage_reads_and_writes(profile: str, trainer: st
 
 
 def test_dvc_stage_list_is_the_contract():
-    env = {k: v for k, v in os.environ.items() if k != "SCANLOC_CONF"}
-    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
-    result = subprocess.run(
-        ["dvc", "stage", "list", "--name-only"],
-        cwd=REPO_ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert result.returncode == 0, result.stderr
-    names = result.stdout.split()
+    names = run_in_repo(["dvc", "stage", "list", "--name-only"]).split()
     assert len(names) == len(set(names))
     params = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
     assert set(names) == set(dvc_stages(params["profile"], params["trainer"]))

@@ -17,8 +17,9 @@ import yaml
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from scanloc.data.scan_dataset import FORMAT_NAME, FORMAT_VERSION, load_scan_dataset
+from scanloc.data.scan_dataset import save_scan_dataset
 from scanloc.sensor.laser import LaserSpec
+from scanloc.stages._app import is_rank_zero
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = REPO_ROOT / "conf"
@@ -37,34 +38,26 @@ def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     rng = np.random.default_rng(0)
     count = 80
     path = tmp_path_factory.mktemp("scans") / "tiny"
-    path.mkdir()
     ranges = rng.uniform(spec.range_min, spec.range_max, (count, spec.num_beams))
     poses = np.column_stack(
         [rng.uniform(0, 15, count), rng.uniform(0, 15, count), rng.uniform(-np.pi, np.pi, count)]
     )
     is_val = np.arange(count) % 8 == 0
-    np.save(path / "ranges.npy", ranges.astype(np.float32))
-    np.save(path / "poses.npy", poses)
-    np.save(path / "is_val.npy", is_val)
-    n_val = int(is_val.sum())
     meta = {
-        "format": {"name": FORMAT_NAME, "version": FORMAT_VERSION},
         "map": {"name": "random"},
         "sensor": {**asdict(spec), "mode": "exact", "unknown_blocks": False},
-        "count": count,
         "seed": 0,
-        "split": {"val_fraction": n_val / count, "train": count - n_val, "val": n_val},
     }
-    (path / "meta.json").write_text(json.dumps(meta, indent=2))
-    load_scan_dataset(path)  # the format the training code reads
-    return path
+    return save_scan_dataset(path, ranges, poses, is_val, meta)
 
 
-def run_train(cwd: Path, *args: str, timeout: int = 300) -> subprocess.CompletedProcess[str]:
-    """The train stage app as DVC or a user runs it, from `cwd` with the repository's conf/."""
+def run_train(
+    cwd: Path, *args: str, timeout: int = 300, stage: str = "train"
+) -> subprocess.CompletedProcess[str]:
+    """A training stage's app as DVC or a user runs it, from `cwd` with the repository's conf/."""
     env = dict(os.environ, SCANLOC_CONF=str(CONF_DIR))
     result = subprocess.run(
-        [sys.executable, "-m", "scanloc.stages.train", *args],
+        [sys.executable, "-m", f"scanloc.stages.{stage}", *args],
         cwd=cwd,
         env=env,
         capture_output=True,
@@ -72,7 +65,7 @@ def run_train(cwd: Path, *args: str, timeout: int = 300) -> subprocess.Completed
         timeout=timeout,
     )
     assert result.returncode == 0, (
-        f"train {' '.join(args)} failed:\n{result.stdout}\n{result.stderr}"
+        f"{stage} {' '.join(args)} failed:\n{result.stdout}\n{result.stderr}"
     )
     return result
 
@@ -126,6 +119,36 @@ def test_sweep_runs_each_job_into_its_own_folder(launcher: str, tiny_dataset: Pa
     # A sweep never writes into the pipeline's outputs (models/, the metrics under reports/).
     written = [p for d in ("models", "reports") for p in (tmp_path / d).rglob("*") if p.is_file()]
     assert not written, f"the sweep wrote pipeline outputs: {written}"
+
+
+def test_transfer_sweep_writes_into_its_job_folder(tiny_dataset: Path, tmp_path: Path):
+    sweep = tmp_path / "sweep"
+    run_train(
+        tmp_path,
+        "-m",
+        "init=scratch",
+        "transfer.epochs=1",
+        "transfer.samples=64",
+        f"dataset_dir={tiny_dataset}",
+        f"hydra.sweep.dir={sweep}",
+        stage="transfer",
+    )
+    job_dir = sweep / "0"
+    check_metrics(job_dir / "metrics.json")
+    assert (job_dir / "model" / "model.pt").is_file()
+    assert (job_dir / "transfer_scratch.json").is_file()  # the stage's wall time
+    written = [p for d in ("models", "reports") for p in (tmp_path / d).rglob("*") if p.is_file()]
+    assert not written, f"the sweep wrote pipeline outputs: {written}"
+
+
+def test_only_rank_zero_writes(monkeypatch: pytest.MonkeyPatch) -> None:
+    for key in ("RANK", "LOCAL_RANK"):
+        monkeypatch.delenv(key, raising=False)
+    assert is_rank_zero()
+    monkeypatch.setenv("LOCAL_RANK", "1")
+    assert not is_rank_zero()
+    monkeypatch.setenv("RANK", "0")  # the global rank decides
+    assert is_rank_zero()
 
 
 @pytest.mark.slow  # about 30 s: three processes import torch and Lightning

@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 
 from scanloc.sensor.laser import LaserSpec
-from scanloc.sensor.noise import NoNoise, RangeGaussianNoise
+from scanloc.sensor.noise import NoNoise, RangeGaussianNoise, noise_from_config
 from scanloc.sensor.raycast import CastMap, cast_exact
 from scanloc.sensor.simulate import (
     ScanSimulator,
     laser_spec_from_config,
-    noise_from_config,
     simulate_scans,
 )
 from scanloc.world.occupancy_grid import OCCUPIED, OccupancyGrid

@@ -3,10 +3,7 @@ the benchmark's smoke run."""
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +23,6 @@ from scanloc.sensor.raycast import (
 from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 
-ROOT = Path(__file__).resolve().parents[1]
 RES = 0.02
 
 
@@ -273,15 +269,8 @@ def test_stdr_readings_are_multiples_of_the_resolution_on_the_paper_map(stdr_map
     assert 0 < np.mean(readings[both] - exact[both]) < RES
 
 
-def test_benchmark_quick_reports_its_figures() -> None:
-    run = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "raycast.py"), "--quick"],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=300,
-    )
-    figures = json.loads(run.stdout.strip().splitlines()[-1])
+def test_benchmark_quick_reports_its_figures(quick_benchmark) -> None:
+    figures = quick_benchmark("raycast.py")
     for key in (
         "rays_per_s",
         "reference_rays_per_s",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -75,7 +76,7 @@ def test_round_trip(dataset_dir: Path) -> None:
 
 def test_noise_free_dataset_holds_the_exact_ranges(tmp_path: Path) -> None:
     meta = make(tmp_path / "clean", noise_cfg={"kind": "none"}, num_samples=200)
-    assert meta["noise"] == NoNoise().to_dict()
+    assert meta["noise"] == asdict(NoNoise())
     data = load_scan_dataset(tmp_path / "clean")
     exact = cast_exact(CastMap.from_grid(world()), data.poses, SPEC.beam_angles(), SPEC.range_max)
     want = np.where(np.isfinite(exact), exact, SPEC.no_return_value).astype(np.float32)

@@ -12,24 +12,12 @@ from scanloc.models.cnn1d import Cnn1d
 from scanloc.models.mlp import Mlp
 from scanloc.models.stacked_ensemble import StackedMembers, fit_stacked
 from scanloc.models.training import fit, load_model, read_model_file
-from synthetic_scans import write_synthetic_scans
 
 CNN1D = {"_target_": "scanloc.models.cnn1d.Cnn1d", "pool_size": 8, "dropout": 0.2}
 COMMON = {"epochs": 2, "batch_size": 32, "lr": 0.006, "lr_decay": 0.01, "max_samples": 128}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_torch_thread():
-    """Tiny models train fastest on one thread (and OpenMP barriers do not stall on busy cores)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
-@pytest.fixture(scope="module")
-def scans(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return write_synthetic_scans(tmp_path_factory.mktemp("scans") / "tiny", count=256, beams=64)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.mark.parametrize("precision", ["32-true", "bf16-mixed"])

@@ -14,24 +14,11 @@ import scanloc.models.training as training
 from scanloc.data.datamodule import ScanDataModule, batch_slices, epoch_permutation
 from scanloc.models.pose_regressor import HISTORY_COLUMNS, PoseRegressor
 from scanloc.models.training import fit, load_model, predict, read_model_file, resolve_precision
-from synthetic_scans import write_synthetic_scans
 
 CNN1D = {"_target_": "scanloc.models.cnn1d.Cnn1d", "pool_size": 8}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_torch_thread():
-    """Tiny models train fastest on one thread, which also keeps OpenMP barriers from
-    stalling when other processes share the cores."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
-@pytest.fixture(scope="module")
-def scans(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return write_synthetic_scans(tmp_path_factory.mktemp("scans") / "tiny", count=256, beams=64)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def history(out_dir: Path) -> list[dict[str, float]]:

@@ -24,16 +24,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from scanloc.data.scan_dataset import ScanDataset, load_scan_dataset
+from scanloc.data.scan_dataset import load_scan_dataset
 
 Batch = tuple[Tensor, Tensor]
 Gather = Callable[[Tensor], Batch]
 RESIDENT_MAX_BYTES = 8 << 30
-
-
-def open_scan_dataset(dataset_dir: str | os.PathLike[str]) -> ScanDataset:
-    """The dataset folder, checked against its meta.json; `ranges` stays memory-mapped."""
-    return load_scan_dataset(dataset_dir)
 
 
 def epoch_permutation(n: int, seed: int, epoch: int) -> Tensor:
@@ -62,7 +57,12 @@ def batch_slices(n: int, batch_size: int, rank: int = 0, world_size: int = 1) ->
 
 
 class EpochBatches:
-    """One epoch of batches per iteration; Lightning calls `set_epoch` (via `.sampler`)."""
+    """One epoch of batches per iteration; Lightning calls `set_epoch` (via `.sampler`).
+
+    `device` is where the batches live; the epoch's order is built on `index_device` (default:
+    `device`), where `gather` indexes: on the device for resident data, on the CPU for the
+    memory map (so no batch waits for a device-to-host copy of its indices).
+    """
 
     batch_sampler = None  # Lightning inspects DataLoader-like objects for both attributes
 
@@ -75,8 +75,10 @@ class EpochBatches:
         device: torch.device,
         rank: int = 0,
         world_size: int = 1,
+        index_device: torch.device | None = None,
     ) -> None:
         self.gather, self.n, self.seed, self.device = gather, n, seed, device
+        self.index_device = device if index_device is None else index_device
         self.rank, self.world_size = rank, world_size
         if seed is None:  # evaluation: every world_size-th sample, in order, nothing dropped
             local = len(range(rank, n, world_size))
@@ -99,9 +101,9 @@ class EpochBatches:
 
     def __iter__(self) -> Iterator[Batch]:
         if self.seed is None:
-            order = torch.arange(self.rank, self.n, self.world_size, device=self.device)
+            order = torch.arange(self.rank, self.n, self.world_size, device=self.index_device)
         else:
-            order = epoch_permutation(self.n, self.seed, self.epoch).to(self.device)
+            order = epoch_permutation(self.n, self.seed, self.epoch).to(self.index_device)
         for part in self.slices:
             yield self.gather(order[part])
 
@@ -114,7 +116,7 @@ def memmap_gather(ranges: np.ndarray, targets: np.ndarray, rows: np.ndarray, dev
     """Batches read from the memory map; `rows` maps split positions to dataset rows."""
 
     def gather(idx: Tensor) -> Batch:
-        picked = rows[idx.cpu().numpy()]
+        picked = rows[idx.numpy()]
         x = torch.from_numpy(np.ascontiguousarray(ranges[picked]))
         y = torch.from_numpy(targets[picked])
         return x.to(device, non_blocking=True), y.to(device, non_blocking=True)
@@ -151,8 +153,8 @@ class ScanDataModule(L.LightningDataModule):
         self.eval_batch_size = eval_batch_size or batch_size
         self.resident = resident
         self._device = None if device is None else torch.device(device)
-        self._splits: dict[str, tuple[Gather, int]] = {}
-        self.num_beams = 0
+        # Per split: the gather, the sample count and the device its indices live on.
+        self._splits: dict[str, tuple[Gather, int, torch.device]] = {}
 
     @property
     def device(self) -> torch.device:
@@ -170,19 +172,18 @@ class ScanDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self._splits:
             return
-        data = open_scan_dataset(self.dataset_dir)
-        count = len(data) if self.max_samples is None else min(self.max_samples, len(data))
+        data = load_scan_dataset(self.dataset_dir)
         if self.max_samples is not None and self.max_samples > len(data):
             raise ValueError(
                 f"{self.dataset_dir}: max_samples={self.max_samples} but the dataset holds "
                 f"only {len(data)} samples"
             )
-        self.num_beams = int(data.ranges.shape[1])
+        count = self.max_samples or len(data)
         is_val = np.asarray(data.is_val[:count])
         targets = np.asarray(data.poses[:count], dtype=np.float32)
         resident = self.resident
         if resident is None:
-            resident = count * (self.num_beams + 3) * 4 <= RESIDENT_MAX_BYTES
+            resident = count * (data.ranges.shape[1] + 3) * 4 <= RESIDENT_MAX_BYTES
         for name, rows in (("train", np.flatnonzero(~is_val)), ("val", np.flatnonzero(is_val))):
             if rows.size == 0:
                 raise ValueError(
@@ -191,10 +192,11 @@ class ScanDataModule(L.LightningDataModule):
             if resident:
                 x = torch.from_numpy(np.ascontiguousarray(data.ranges[rows])).to(self.device)
                 y = torch.from_numpy(targets[rows]).to(self.device)
-                gather = resident_gather(x, y)
+                gather, index_device = resident_gather(x, y), self.device
             else:
                 gather = memmap_gather(data.ranges, targets, rows, self.device)
-            self._splits[name] = (gather, int(rows.size))
+                index_device = torch.device("cpu")
+            self._splits[name] = (gather, int(rows.size), index_device)
 
     @property
     def train_size(self) -> int:
@@ -206,15 +208,20 @@ class ScanDataModule(L.LightningDataModule):
 
     def train_batches(self, seed: int | None = None) -> EpochBatches:
         """Shuffled training batches in the order of `seed` (default: the module's seed)."""
-        gather, n = self._splits["train"]
+        gather, n, index_device = self._splits["train"]
         seed = self.seed if seed is None else seed
-        return EpochBatches(gather, n, self.batch_size, seed, self.device, *self._rank_world())
+        rank, world = self._rank_world()
+        return EpochBatches(
+            gather, n, self.batch_size, seed, self.device, rank, world, index_device
+        )
 
     def val_batches(self) -> EpochBatches:
         """Validation batches in dataset order."""
-        gather, n = self._splits["val"]
+        gather, n, index_device = self._splits["val"]
         rank, world = self._rank_world()
-        return EpochBatches(gather, n, self.eval_batch_size, None, self.device, rank, world)
+        return EpochBatches(
+            gather, n, self.eval_batch_size, None, self.device, rank, world, index_device
+        )
 
     def train_dataloader(self) -> EpochBatches:
         return self.train_batches()

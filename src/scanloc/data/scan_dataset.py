@@ -18,9 +18,7 @@ import hashlib
 import json
 import math
 import os
-import shutil
 import sys
-import tempfile
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -29,8 +27,9 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from scanloc.io import atomic_dir, write_json
 from scanloc.sensor.laser import LaserSpec
-from scanloc.sensor.noise import NoiseModel, NoNoise, RangeGaussianNoise, noise_from_config
+from scanloc.sensor.noise import NoiseModel, noise_from_config
 from scanloc.sensor.simulate import ScanSimulator, laser_spec_from_config
 from scanloc.world.free_space import sample_free_poses
 from scanloc.world.occupancy_grid import OccupancyGrid
@@ -62,17 +61,6 @@ def _map_meta(grid: OccupancyGrid, name: str) -> dict[str, Any]:
     }
 
 
-def _replace_dir(src: Path, dst: Path) -> None:
-    """Put folder `src` at `dst`, replacing whatever was there, with one rename each way."""
-    if not (dst.exists() or dst.is_symlink()):
-        os.replace(src, dst)
-        return
-    old = Path(tempfile.mkdtemp(prefix=f".{dst.name}.", suffix=".old", dir=dst.parent))
-    os.replace(dst, old / dst.name)
-    os.replace(src, dst)
-    shutil.rmtree(old)
-
-
 def generate_scan_dataset(
     out_dir: str | os.PathLike[str],
     grid: OccupancyGrid,
@@ -102,10 +90,7 @@ def generate_scan_dataset(
         raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction!r}")
     if not (isinstance(chunk_size, int) and chunk_size >= 1):
         raise ValueError(f"chunk_size must be an integer >= 1, got {chunk_size!r}")
-    if isinstance(noise_cfg, NoNoise | RangeGaussianNoise):
-        noise: NoiseModel = noise_cfg
-    else:
-        noise = noise_from_config(noise_cfg)
+    noise = noise_cfg if isinstance(noise_cfg, NoiseModel) else noise_from_config(noise_cfg)
     simulator = ScanSimulator(grid, spec, noise, mode, unknown_blocks)
 
     poses = sample_free_poses(
@@ -118,7 +103,7 @@ def generate_scan_dataset(
         "format": {"name": FORMAT_NAME, "version": FORMAT_VERSION, "files": _FILES},
         "map": _map_meta(grid, map_name),
         "sensor": {**asdict(spec), "mode": mode, "unknown_blocks": bool(unknown_blocks)},
-        "noise": noise.to_dict(),
+        "noise": asdict(noise),
         "count": num_samples,
         "seed": seed,
         "split": {"val_fraction": float(val_fraction), "train": num_samples - n_val, "val": n_val},
@@ -126,13 +111,7 @@ def generate_scan_dataset(
         "noise_block_size": NOISE_BLOCK,
     }
 
-    out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)
+    with atomic_dir(out_dir) as tmp:
         ranges = np.lib.format.open_memmap(
             tmp / "ranges.npy", mode="w+", dtype=np.float32, shape=(num_samples, spec.num_beams)
         )
@@ -157,11 +136,39 @@ def generate_scan_dataset(
         del ranges
         np.save(tmp / "poses.npy", poses)
         np.save(tmp / "is_val.npy", is_val)
-        (tmp / "meta.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-        _replace_dir(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        write_json(tmp / "meta.json", meta)
     return meta
+
+
+def save_scan_dataset(
+    out_dir: str | os.PathLike[str],
+    ranges: np.ndarray,
+    poses: np.ndarray,
+    is_val: np.ndarray,
+    meta: Mapping[str, Any],
+) -> Path:
+    """Write scans made elsewhere (tests, benchmarks, other simulators) in the dataset format.
+
+    `meta` gives what only the caller knows (at least `sensor` and `seed`; also `map`...); the
+    format, count and split are filled in from the arrays. Checked by reading it back.
+    """
+    count = len(is_val)
+    n_val = int(np.count_nonzero(is_val))
+    with atomic_dir(out_dir) as tmp:
+        np.save(tmp / "ranges.npy", np.asarray(ranges, dtype=np.float32))
+        np.save(tmp / "poses.npy", np.asarray(poses, dtype=np.float64))
+        np.save(tmp / "is_val.npy", np.asarray(is_val, dtype=bool))
+        write_json(
+            tmp / "meta.json",
+            {
+                **meta,
+                "format": {"name": FORMAT_NAME, "version": FORMAT_VERSION, "files": _FILES},
+                "count": count,
+                "split": {"val_fraction": n_val / count, "train": count - n_val, "val": n_val},
+            },
+        )
+    load_scan_dataset(out_dir)
+    return Path(out_dir)
 
 
 @dataclass(frozen=True)

@@ -29,10 +29,6 @@ POSE_COLUMNS = ("x", "y", "theta")
 POSITION_COV_COLUMNS = ("cov_xx", "cov_xy", "cov_yy")
 WITHIN_THRESHOLDS_M = {"frac_within_0_1m": 0.1, "frac_within_0_25m": 0.25, "frac_within_0_5m": 0.5}
 GROSS_FAILURE_M = 1.0
-CALIBRATION_EXPECTED = {
-    "calib_within_1sigma": 1.0 - np.exp(-0.5),
-    "calib_within_2sigma": 1.0 - np.exp(-2.0),
-}
 
 
 def read_estimates(path: Path) -> pd.DataFrame:

@@ -39,14 +39,12 @@ class LikelihoodField:
     """Per-cell pz³ of amcl's likelihood-field model and the map placement to look it up.
 
     Attributes:
-        distance: (H, W) distance (m) from each cell centre to the nearest occupied cell, capped.
         pz3: (H, W) float64, (z_hit·exp(-d²/2σ²) + z_rand/range_max)³ per cell.
         pz3_outside: pz³ for end points off the map (distance = max_dist).
         origin_x, origin_y, resolution: the map placement.
         cell_offset: 0.5 reproduces amcl's half-cell world→cell offset, 0.0 is the exact mapping.
     """
 
-    distance: np.ndarray
     pz3: np.ndarray
     pz3_outside: float
     origin_x: float
@@ -88,7 +86,6 @@ def build_likelihood_field(
     pz = z_hit * np.exp(-(dist * dist) / denom) + z_rand / range_max
     pz_out = z_hit * math.exp(-(max_dist * max_dist) / denom) + z_rand / range_max
     return LikelihoodField(
-        distance=dist,
         pz3=np.ascontiguousarray(pz**3),
         pz3_outside=pz_out**3,
         origin_x=float(grid.origin[0]),

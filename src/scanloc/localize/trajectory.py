@@ -33,11 +33,12 @@ from typing import Any
 
 import numpy as np
 from scipy import sparse
-from scipy.ndimage import distance_transform_edt, uniform_filter1d
+from scipy.ndimage import uniform_filter1d
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from scanloc.io import atomic_path
 from scanloc.localize.estimates import wrap_angle
+from scanloc.world.free_space import centre_clearance
 from scanloc.world.occupancy_grid import OccupancyGrid
 
 PLAN_RESOLUTION = 0.1  # metres between planning graph nodes
@@ -85,17 +86,9 @@ class Trajectory:
     waypoints: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
-def clearance_map(grid: OccupancyGrid) -> np.ndarray:
-    """Distance (m) from each cell centre to the nearest non-free cell centre (0 if not free).
-
-    Cells beyond the map's edge count as non-free.
-    """
-    padded = np.pad(grid.free, 1, constant_values=False)
-    return distance_transform_edt(padded)[1:-1, 1:-1] * grid.resolution
-
-
 def pose_clearance(grid: OccupancyGrid, clear: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """A lower bound on the distance from points (N, 2) to every occupied or unknown cell.
+    """A lower bound on the distance from points (N, 2) to every occupied or unknown cell;
+    `clear` is centre_clearance(grid) in metres.
 
     A point p in cell c is within |p - centre(c)| of the centre, and a blocked cell's square
     lies within res/√2 of its centre, so clearance(p) >= clear[c] - |p - c| - res/√2.
@@ -361,7 +354,7 @@ def drive_trajectory(
     noise = odometry_noise or OdometryNoise()
     plan_rng, odom_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
     dt = 1.0 / rate_hz
-    clear = clearance_map(grid)
+    clear = centre_clearance(grid) * grid.resolution  # metres
     graph = _planning_graph(grid, clear, clearance)
     reach = num_steps * dt * max_speed  # no run drives farther than this
     polyline, waypoints = _route(graph, plan_rng, reach, 1.1 * reach + 4.0 * lookahead + 1.0)

@@ -18,6 +18,7 @@ from torch import Tensor, nn
 from scanloc.data.rasterize import rasterize_scans
 from scanloc.models.cnn1d import sigmoid_head
 from scanloc.models.keras_init import keras_init_
+from scanloc.sensor.laser import LaserSpec
 
 FILTERS = (4, 8, 8, 16, 16, 16)
 
@@ -46,10 +47,10 @@ class Cnn2d(nn.Module):
             raise ValueError(f"image_size={image_size} is too small for {len(FILTERS)} pools of 2")
         self.num_beams, self.image_size, self.max_range = num_beams, image_size, max_range
         self.skip_range = None if draw_no_return else no_return_value
-        step = (angle_max - angle_min) / (num_beams - 1)
-        angles = angle_min + step * torch.arange(num_beams, dtype=torch.float64)
+        laser = LaserSpec(num_beams=num_beams, angle_min=angle_min, angle_max=angle_max)
+        angles = torch.from_numpy(laser.beam_angles()).to(torch.float32)
         # Derived from the constructor arguments, so not part of the state dict.
-        self.register_buffer("angles", angles.to(torch.float32), persistent=False)
+        self.register_buffer("angles", angles, persistent=False)
         channels = (1, *FILTERS)
         self.conv = nn.ModuleList(
             nn.Conv2d(c_in, c_out, 3, padding=1)

@@ -19,7 +19,7 @@ import lightning as L
 import torch
 from torch import Tensor, nn
 
-from scanloc.models.lr_schedule import keras_decay, keras_decay_factor
+from scanloc.models.lr_schedule import keras_decay
 
 ADAM_BETAS = (0.9, 0.999)
 ADAM_EPS = 1e-8
@@ -135,7 +135,7 @@ class PoseRegressor(L.LightningModule):
             return
         val = self._mean_errors("val")
         train = self._mean_errors("train")
-        lr = self.lr * keras_decay_factor(self.trainer.global_step, self.lr_decay)
+        lr = self.lr_schedulers().get_last_lr()[0]
         row = epoch_row(self.current_epoch + 1, train, val, lr)
         self.history.append(row)
         self.epoch_seconds.append(time.perf_counter() - self._epoch_start)

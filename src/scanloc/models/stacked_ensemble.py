@@ -35,9 +35,10 @@ import torch
 from torch import Tensor, nn
 from torch.func import functional_call, stack_module_state, vmap
 
-from scanloc.data.datamodule import EpochBatches, ScanDataModule, open_scan_dataset
+from scanloc.data.datamodule import EpochBatches, ScanDataModule
+from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.io import write_json
-from scanloc.models.lr_schedule import keras_decay, keras_decay_factor
+from scanloc.models.lr_schedule import keras_decay
 from scanloc.models.pose_regressor import epoch_row, mae_loss, make_adam, pose_error_sums
 from scanloc.models.training import (
     PathLike,
@@ -49,6 +50,7 @@ from scanloc.models.training import (
     save_model,
     trainer_arguments,
     training_metrics,
+    uses_cuda,
     write_history,
 )
 
@@ -64,17 +66,13 @@ def _setup_torch(
         raise ValueError("trainer compile: true is not supported by fit_stacked")
     args = trainer_arguments(trainer_cfg)  # also applies matmul_precision, resolves "auto"
     precision = args["precision"]
-    if precision not in ("32", "32-true", "bf16-mixed"):
+    if precision not in ("32-true", "bf16-mixed"):
         raise ValueError(
             f"trainer precision {precision!r}: fit_stacked trains in 32-true or bf16-mixed"
         )
-    accelerator = str(args.get("accelerator", "cpu"))
     if device is None:
-        cuda = accelerator in ("gpu", "cuda") or (
-            accelerator == "auto" and torch.cuda.is_available()
-        )
-        device = "cuda" if cuda else "cpu"
-    deterministic = args.get("deterministic", True)
+        device = "cuda" if uses_cuda(str(args["accelerator"])) else "cpu"
+    deterministic = args["deterministic"]
     if deterministic:
         os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # as Lightning does
         torch.use_deterministic_algorithms(True, warn_only=deterministic == "warn")
@@ -239,7 +237,7 @@ def fit_stacked(
     target, bf16 = _setup_torch(trainer_cfg, device)
     keep_freed_memory()
     data = ScanDataModule(dataset_dir, batch_size, max_samples=max_samples, device=target)
-    model_cfg = dataset_model_cfg(model_cfg, open_scan_dataset(dataset_dir))
+    model_cfg = dataset_model_cfg(model_cfg, load_scan_dataset(dataset_dir))
     rng = _RngStreams(target)
     models = []
     for seed in seeds:  # exactly fit's order: seed, then build (the init draws)
@@ -255,7 +253,6 @@ def fit_stacked(
     histories: list[list[dict[str, float]]] = [[] for _ in seeds]
     best: list[tuple[float, dict[str, Tensor]]] = [(float("inf"), {}) for _ in seeds]
     seconds: list[float] = []
-    step = 0
     for epoch in range(epochs):
         start = time.perf_counter()
         members.train(True)
@@ -271,10 +268,9 @@ def fit_stacked(
             optimizer.step()
             schedule.step()
             members.zero_grad()
-            step += 1
         val = _evaluate(members, val_batches)
         seconds.append(time.perf_counter() - start)
-        rate = lr * keras_decay_factor(step, lr_decay)
+        rate = schedule.get_last_lr()[0]
         for k in range(len(seeds)):
             row = epoch_row(epoch + 1, (train_sums[k] / seen).cpu(), val[k], rate)
             histories[k].append(row)

@@ -29,7 +29,7 @@ import statistics
 import sys
 import tempfile
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -44,8 +44,8 @@ from torch import nn
 
 import scanloc.data.datamodule as datamodule_py
 import scanloc.data.rasterize as rasterize_py
-from scanloc.data.datamodule import ScanDataModule, open_scan_dataset
-from scanloc.data.scan_dataset import ScanDataset
+from scanloc.data.datamodule import ScanDataModule
+from scanloc.data.scan_dataset import ScanDataset, load_scan_dataset
 from scanloc.io import atomic_path, write_json
 from scanloc.models.pose_regressor import HISTORY_COLUMNS, PoseRegressor
 
@@ -260,10 +260,11 @@ def run_key(config: Mapping[str, Any], dataset_dir: PathLike, init_from: PathLik
 
 
 @contextmanager
-def _run_dir(checkpoint_dir: PathLike | None, key: str) -> Iterator[Path]:
-    """checkpoint_dir/<key>, or a temporary folder (removed afterwards) without resume."""
+def _run_dir(checkpoint_dir: PathLike | None, key: Callable[[], str]) -> Iterator[Path]:
+    """checkpoint_dir/<key()>, or a temporary folder (removed afterwards) without resume; the
+    key (which hashes the whole dataset) is only computed when there is a folder to resume."""
     if checkpoint_dir is not None:
-        path = Path(checkpoint_dir) / key
+        path = Path(checkpoint_dir) / key()
         path.mkdir(parents=True, exist_ok=True)
         yield path
         return
@@ -319,14 +320,18 @@ def resolve_precision(precision: Any, accelerator: str) -> str:
     precision = str(precision)
     if precision != "auto":
         return precision
-    on_gpu = accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available())
-    if on_gpu:
+    if uses_cuda(accelerator):
         native = torch.cuda.is_available() and torch.cuda.is_bf16_supported(
             including_emulation=False
         )
     else:
         native = cpu_has_native_bf16()
     return "bf16-mixed" if native else "32-true"
+
+
+def uses_cuda(accelerator: str) -> bool:
+    """Whether a Trainer with this `accelerator` trains on a CUDA device."""
+    return accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available())
 
 
 def compile_requested(trainer_cfg: Mapping[str, Any] | None) -> bool:
@@ -401,7 +406,7 @@ def fit(
         raise ValueError(f"epochs must be >= 1, got {epochs}")
     if any(not 1 <= e <= epochs for e in snapshot_epochs):
         raise ValueError(f"snapshot_epochs must lie in 1..{epochs}, got {list(snapshot_epochs)}")
-    data = open_scan_dataset(dataset_dir)
+    data = load_scan_dataset(dataset_dir)
     model_cfg = dataset_model_cfg(model_cfg, data)
     out_dir = Path(out_dir)
     config = {
@@ -420,7 +425,7 @@ def fit(
     counts = split_counts(data, max_samples)
     _quiet_lightning()
     keep_freed_memory()
-    with _run_dir(checkpoint_dir, run_key(config, dataset_dir, init_from)) as run_dir:
+    with _run_dir(checkpoint_dir, lambda: run_key(config, dataset_dir, init_from)) as run_dir:
         L.seed_everything(seed, workers=True, verbose=False)
         model = build_model(model_cfg)
         if init_from is not None:

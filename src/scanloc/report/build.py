@@ -27,6 +27,7 @@ import yaml
 
 from scanloc.evaluate.metrics import check_table
 from scanloc.evaluate.table2 import (
+    METHOD_ORDER,
     MODERN_COLUMNS,
     TABLE2_COLUMNS,
     TABLE2_NOTE,
@@ -38,6 +39,7 @@ from scanloc.io import atomic_path, read_json
 from scanloc.report import figures
 from scanloc.report.claims import NOT_TESTABLE, Claim, Run, check_claims
 from scanloc.sensor.laser import LaserSpec
+from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import OccupancyGrid
 
@@ -54,7 +56,6 @@ MAPS = {"sparse_obstacles": "map 1 (paper Fig. 6)", "simple_rooms": "map 2 (pape
 MAP1 = "sparse_obstacles"
 ROWS = {"mlp": "MLP", "cnn1d_20k": "1D CNN 20k", "cnn1d_200k": "1D CNN 200k", "cnn2d": "2D CNN"}
 TRANSFER = {"transfer/scratch": "random init", "transfer/pretrained": "pre-trained on map 1"}
-METHODS = ("amcl", "cnn_single", "cnn_ensemble")
 METHOD_NOTES = {
     "amcl": "Monte Carlo localization (ROS amcl as implemented) from scans and odometry, "
     "tracking from the first true pose; hypotheses = particles",
@@ -234,11 +235,10 @@ def find_dataset(root: Path, map_name: str) -> Path | None:
 
 
 def laser_from_meta(meta: Mapping[str, Any], meta_path: Path) -> LaserSpec:
-    sensor = meta.get("sensor")
-    if not isinstance(sensor, dict):
-        raise ValueError(f"{meta_path}: field 'sensor': expected a mapping, got {sensor!r}")
-    known = LaserSpec.__dataclass_fields__
-    return LaserSpec(**{k: v for k, v in sensor.items() if k in known})
+    try:
+        return laser_spec_from_config(meta.get("sensor"))
+    except ValueError as err:
+        raise ValueError(f"{meta_path}: field 'sensor': {err}") from None
 
 
 def example_scan(dataset: Path) -> tuple[np.ndarray, np.ndarray, int]:
@@ -542,7 +542,7 @@ def localization_section(
     b: _Builder, grid: OccupancyGrid, truth: np.ndarray, tables: Mapping[str, pd.DataFrame]
 ) -> Section:
     section = Section(*SECTIONS[3])
-    absent = [m for m in METHODS if m not in tables]
+    absent = [m for m in METHOD_ORDER if m not in tables]
     section.blocks.append(
         Para(
             f"The robot drives {len(truth)} steps through map 1 "
@@ -658,15 +658,14 @@ def provenance_section(b: _Builder) -> Section:
         )
     )
     section.blocks.append(Table(["package", "version"], package_versions()))
-    stage_rows = []
+    stage_rows, total = [], 0.0
     for path in sorted((b.root / TIMING_DIR).glob("*.json")):
+        if path.stem == "report":  # this stage's own time, from its previous run
+            continue
         doc = read_json(path)
         stage_rows.append([str(doc.get("stage", path.stem)), _num(doc.get("wall_s"), 4)])
+        total += float(doc.get("wall_s", 0.0))
     if stage_rows:
-        total = sum(
-            float(read_json(p).get("wall_s", 0.0))
-            for p in sorted((b.root / TIMING_DIR).glob("*.json"))
-        )
         stage_rows.append(["total", _num(total, 4)])
         section.blocks.append(Table(["stage", "wall time [s]"], stage_rows))
     else:

@@ -12,7 +12,7 @@ used): the `none` model reproduces that.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -30,13 +30,6 @@ class NoNoise:
         """Return a float64 copy of `ranges`; `rng` is not used."""
         return np.array(ranges, dtype=np.float64)
 
-    def sigma(self, ranges: np.ndarray) -> np.ndarray:
-        """Standard deviation (m) at each true range: zero."""
-        return np.zeros_like(np.asarray(ranges, dtype=np.float64))
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
 
 @dataclass(frozen=True)
 class RangeGaussianNoise:
@@ -49,7 +42,7 @@ class RangeGaussianNoise:
     kind: str = "ug01"
 
     def __post_init__(self) -> None:
-        for field in ("near_sigma_m", "knee_m", "relative_sigma"):
+        for field in _UG01_FIELDS:
             value = getattr(self, field)
             if not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):
                 raise ValueError(
@@ -73,11 +66,9 @@ class RangeGaussianNoise:
         sigma = self.sigma(np.where(finite, ranges, 0.0))
         return np.where(finite, ranges + sigma * z, ranges)
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
 
 NoiseModel = NoNoise | RangeGaussianNoise
+_UG01_FIELDS = tuple(f.name for f in fields(RangeGaussianNoise) if f.name != "kind")
 
 
 def noise_from_config(cfg: Mapping[str, Any]) -> NoiseModel:
@@ -85,17 +76,17 @@ def noise_from_config(cfg: Mapping[str, Any]) -> NoiseModel:
     if not isinstance(cfg, Mapping):
         raise ValueError(f"noise config must be a mapping, got {type(cfg).__name__}")
     kind = cfg.get("kind")
-    fields = {k: v for k, v in cfg.items() if k != "kind"}
+    values = {k: v for k, v in cfg.items() if k != "kind"}
     if kind == "none":
-        if fields:
-            raise ValueError(f"noise kind 'none' takes no fields, got {sorted(fields)}")
+        if values:
+            raise ValueError(f"noise kind 'none' takes no fields, got {sorted(values)}")
         return NoNoise()
     if kind == "ug01":
-        allowed = {"near_sigma_m", "knee_m", "relative_sigma"}
-        unknown = sorted(set(fields) - allowed)
+        unknown = sorted(set(values) - set(_UG01_FIELDS))
         if unknown:
             raise ValueError(
-                f"noise kind 'ug01': unknown field(s) {unknown}; expected some of {sorted(allowed)}"
+                f"noise kind 'ug01': unknown field(s) {unknown}; expected some of "
+                f"{sorted(_UG01_FIELDS)}"
             )
-        return RangeGaussianNoise(**fields)
+        return RangeGaussianNoise(**values)
     raise ValueError(f"noise field 'kind': expected one of {NOISE_KINDS}, got {kind!r}")

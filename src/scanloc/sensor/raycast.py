@@ -139,8 +139,8 @@ def _march_safe(blocked: np.ndarray) -> np.ndarray:
     else:  # nothing to hit: rays end at the grid's edge or at range_max
         centre_dist = np.full(blocked.shape, float(sum(blocked.shape)))
     safe = np.maximum(centre_dist - math.sqrt(2.0) - _JUMP_MARGIN_CELLS, 0.0).astype(np.float32)
-    # float32 rounding must not lengthen a jump
-    safe = np.where(safe > 0, np.nextafter(safe, np.float32(0)), safe)
+    # float32 rounding must not lengthen a jump (nextafter(0, 0) stays 0)
+    safe = np.nextafter(safe, np.float32(0))
     return np.ascontiguousarray(np.where(blocked, np.float32(-1.0), safe))
 
 

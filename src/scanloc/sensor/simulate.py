@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from scanloc.sensor.laser import LaserSpec
-from scanloc.sensor.noise import NoiseModel, NoNoise, noise_from_config
+from scanloc.sensor.noise import NoiseModel, NoNoise
 from scanloc.sensor.raycast import CastMap, cast_exact, cast_stdr
 from scanloc.world.occupancy_grid import OccupancyGrid
 
@@ -25,7 +25,6 @@ __all__ = [
     "MODES",
     "ScanSimulator",
     "laser_spec_from_config",
-    "noise_from_config",
     "simulate_scans",
 ]
 

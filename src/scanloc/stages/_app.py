@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import Any
 
 import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from scanloc.io import write_json
@@ -44,13 +46,34 @@ def to_dict(node: DictConfig) -> dict[str, Any]:
     return OmegaConf.to_container(node, resolve=True)  # type: ignore[return-value]
 
 
+def is_rank_zero() -> bool:
+    """False in the extra processes of a multi-process (DDP) run, which re-run the stage's
+    command with RANK / LOCAL_RANK set: only rank 0 writes a stage's outputs."""
+    for key in ("RANK", "LOCAL_RANK"):
+        if key in os.environ:
+            return int(os.environ[key]) == 0
+    return True
+
+
+def output_paths(cfg: DictConfig) -> tuple[Path, Path, Path]:
+    """(model folder, metrics file, timing folder) of a training stage: the configured ones
+    under DVC; in a Hydra multirun the job's own folder, so sweeps never overwrite the
+    pipeline's models and metrics."""
+    hydra_cfg = HydraConfig.get()
+    if hydra_cfg.mode == RunMode.MULTIRUN:
+        job_dir = Path(hydra_cfg.runtime.output_dir)
+        return job_dir / "model", job_dir / "metrics.json", job_dir
+    return Path(cfg.out_dir), Path(cfg.metrics_path), TIMING_DIR
+
+
 @contextmanager
 def timed_stage(name: str, folder: Path = TIMING_DIR) -> Iterator[None]:
     """Record the stage's wall time in <folder>/<name>.json (under DVC: reports/timing/, a
-    cache-less metric)."""
+    cache-less metric); rank 0 only."""
     start = time.perf_counter()
     yield
-    write_json(
-        folder / f"{name}.json",
-        {"stage": name, "wall_s": round(time.perf_counter() - start, 3)},
-    )
+    if is_rank_zero():
+        write_json(
+            folder / f"{name}.json",
+            {"stage": name, "wall_s": round(time.perf_counter() - start, 3)},
+        )

@@ -9,21 +9,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from hydra.core.hydra_config import HydraConfig
-from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from scanloc.io import write_json
-from scanloc.stages._app import TIMING_DIR, stage_main, timed_stage, to_dict
-
-
-def output_paths(cfg: DictConfig) -> tuple[Path, Path]:
-    """(model folder, metrics file): the configured ones, or inside the job folder of a multirun."""
-    hydra_cfg = HydraConfig.get()
-    if hydra_cfg.mode == RunMode.MULTIRUN:
-        job_dir = Path(hydra_cfg.runtime.output_dir)
-        return job_dir / "model", job_dir / "metrics.json"
-    return Path(cfg.out_dir), Path(cfg.metrics_path)
+from scanloc.stages._app import output_paths, stage_main, timed_stage, to_dict
 
 
 def run_config(cfg: DictConfig) -> dict[str, Any]:
@@ -45,14 +34,13 @@ def run_config(cfg: DictConfig) -> dict[str, Any]:
     }
 
 
-def train(cfg: DictConfig) -> dict[str, Any]:
-    """Train what `cfg.experiment` describes and return its metrics."""
+def train(cfg: DictConfig, out_dir: Path, metrics_path: Path) -> dict[str, Any]:
+    """Train what `cfg.experiment` describes into out_dir and return its metrics."""
     # Imported here so that `--cfg job` and a sweep's parent process stay fast.
     from scanloc.models.stacked_ensemble import fit_stacked
     from scanloc.models.training import fit
 
     exp = cfg.experiment
-    out_dir, metrics_path = output_paths(cfg)
     common = {
         "model_cfg": to_dict(cfg.model.net),
         "dataset_dir": Path(cfg.dataset_dir),
@@ -87,10 +75,9 @@ def train(cfg: DictConfig) -> dict[str, Any]:
 
 @stage_main("train")
 def main(cfg: DictConfig) -> float:
-    multirun = HydraConfig.get().mode == RunMode.MULTIRUN
-    timing_dir = output_paths(cfg)[1].parent if multirun else TIMING_DIR
+    out_dir, metrics_path, timing_dir = output_paths(cfg)
     with timed_stage(f"train_{cfg.experiment.name}", timing_dir):
-        metrics = train(cfg)
+        metrics = train(cfg, out_dir, metrics_path)
     # The value a Hydra sweeper would minimise.
     return float(metrics.get("val_mae", float("nan")))
 

@@ -1,5 +1,6 @@
 """`transfer` stage (paper §4.3, Fig. 9): the 1D CNN learns map 2 from random weights
-(init=scratch) or from the weights it learnt on map 1 (init=pretrained); same data, epochs, seed."""
+(init=scratch) or from the weights it learnt on map 1 (init=pretrained); same data, epochs, seed.
+In a Hydra multirun every job writes into its own job folder, as the train stage's do."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from omegaconf import DictConfig
 
 from scanloc.io import write_json
 from scanloc.models.training import fit
-from scanloc.stages._app import stage_main, timed_stage, to_dict
+from scanloc.stages._app import output_paths, stage_main, timed_stage, to_dict
 
 INITS = ("scratch", "pretrained")
 
@@ -19,8 +20,8 @@ def main(cfg: DictConfig) -> None:
     if cfg.init not in INITS:
         raise ValueError(f"conf/transfer.yaml: init must be one of {INITS}, got {cfg.init!r}")
     run = cfg.transfer
-    out_dir = Path(cfg.out_dir)
-    with timed_stage(f"transfer_{cfg.init}"):
+    out_dir, metrics_path, timing_dir = output_paths(cfg)
+    with timed_stage(f"transfer_{cfg.init}", timing_dir):
         metrics = fit(
             model_cfg=to_dict(cfg.model.net),
             dataset_dir=Path(cfg.dataset_dir),
@@ -35,6 +36,8 @@ def main(cfg: DictConfig) -> None:
             init_from=Path(cfg.pretrained_model) if cfg.init == "pretrained" else None,
             checkpoint_dir=Path(cfg.checkpoint_dir),
         )
+        if not metrics:  # a non-zero rank of a multi-process (DDP) run: rank 0 writes
+            return
         write_json(
             out_dir / "config.json",
             {
@@ -52,7 +55,7 @@ def main(cfg: DictConfig) -> None:
                 "seed": int(run.seed),
             },
         )
-        write_json(Path(cfg.metrics_path), metrics)
+        write_json(metrics_path, metrics)
 
 
 if __name__ == "__main__":

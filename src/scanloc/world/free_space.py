@@ -26,7 +26,7 @@ from scanloc.world.occupancy_grid import OccupancyGrid
 _MAX_FRUITLESS_DRAWS = 1_000_000
 
 
-def _centre_clearance(grid: OccupancyGrid) -> np.ndarray:
+def centre_clearance(grid: OccupancyGrid) -> np.ndarray:
     """Distance (cells) from each cell centre to the nearest non-free cell centre, counting a
     ring of non-free cells around the grid (the outside is not free)."""
     padded = np.pad(grid.free, 1, constant_values=False)
@@ -74,7 +74,7 @@ def sample_free_poses(
     if not (math.isfinite(clearance_radius) and clearance_radius >= 0):
         raise ValueError(f"clearance_radius must be a finite number >= 0, got {clearance_radius}")
     radius = clearance_radius / grid.resolution
-    clearance = _centre_clearance(grid)
+    clearance = centre_clearance(grid)
     # a point of cell c is at most sqrt(2)/2 from c's centre, a non-free square at most
     # sqrt(2)/2 from its own centre: below radius - sqrt(2)/2 no point of c can be valid, at
     # radius + sqrt(2) or more every point is
