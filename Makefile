@@ -1,13 +1,14 @@
 # Two entry points on a fresh machine (each sets up .venv first):
 #   make repro   set up, then run the whole pipeline (`dvc repro`, profile from params.yaml)
-#   make test    set up, then run the test suite
+#   make test    set up, then run the test suite (fast: the slow tests are deselected)
+# CI (.ci/run) also runs `make test-slow` (DDP spawn, torch.compile equivalence, ...).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(abspath $(VENV)/bin)
 # The CPU build of torch first: a bare `torch` requirement can pull a CUDA build of several GB.
 TORCH_SPEC ?= torch==2.13.0
 
-.PHONY: setup repro test lint bench
+.PHONY: setup repro test test-slow lint bench
 
 setup: $(VENV)/.ready
 
@@ -23,6 +24,9 @@ repro: setup
 
 test: setup
 	PATH="$(BIN):$$PATH" python -m pytest
+
+test-slow: setup
+	PATH="$(BIN):$$PATH" python -m pytest -m slow
 
 lint: setup
 	$(BIN)/ruff check src tests benchmarks

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from scanloc.localize import cnn_localizer
 from scanloc.localize.cnn_localizer import ensemble_mean_and_cov, localize_cnn
 from scanloc.localize.estimates import TABLE_COLUMNS, wrap_angle
 
@@ -46,20 +47,28 @@ def test_single_member_has_no_covariance() -> None:
         ensemble_mean_and_cov(np.zeros((3, 4, 2)))
 
 
-angles = st.floats(-10.0, 10.0, allow_nan=False)
+finite = st.floats(-10.0, 10.0, allow_nan=False)
+# Headings within ±(π/2 − 0.1) of a common direction, plus whole turns: their mean resultant
+# length is at least sin(0.1) ≈ 0.1, so the circular mean is well defined in every case.
+spread = st.floats(-(np.pi / 2 - 0.1), np.pi / 2 - 0.1, allow_nan=False)
+member = st.tuples(finite, finite, spread, st.integers(-2, 2))
 
 
 @settings(max_examples=60, deadline=None)
 @given(
-    st.lists(st.tuples(angles, angles, angles), min_size=2, max_size=9),
+    st.floats(-np.pi, np.pi, allow_nan=False),
+    st.lists(member, min_size=2, max_size=9),
     st.floats(-7.0, 7.0, allow_nan=False),
 )
-def test_rotating_all_headings_rotates_the_mean(members: list, delta: float) -> None:
-    preds = np.array(members, dtype=np.float64)[:, None, :]
-    resultant = np.hypot(np.cos(preds[:, 0, 2]).mean(), np.sin(preds[:, 0, 2]).mean())
-    if resultant < 1e-3:  # the circular mean of balanced headings is undefined
-        return
+def test_rotating_all_headings_rotates_the_mean(centre: float, members: list, delta: float) -> None:
+    preds = np.array(
+        [(x, y, centre + offset + 2 * np.pi * turns) for x, y, offset, turns in members]
+    )[:, None, :]
     mean, cov = ensemble_mean_and_cov(preds)
+    # The circular mean lies inside the arc the headings span (an arithmetic mean of the raw,
+    # unwrapped headings would not).
+    offsets = np.array([m[2] for m in members])
+    assert offsets.min() - 1e-9 <= wrap_angle(mean[0, 2] - centre) <= offsets.max() + 1e-9
     rotated = preds.copy()
     rotated[:, :, 2] += delta
     mean_r, cov_r = ensemble_mean_and_cov(rotated)
@@ -74,14 +83,23 @@ class _FakeModel:
         self.offset = offset
 
 
+LOAD_S, PREDICT_S = 100.0, 0.5  # what loading and predicting take on the fake clock
+
+
 def _fake_training(monkeypatch: pytest.MonkeyPatch) -> list[int]:
-    """A stand-in for scanloc.models.training: model k predicts (mean range + k, k, π − 0.1·k)."""
+    """A stand-in for scanloc.models.training: model k predicts (mean range + k, k, π − 0.1·k).
+
+    The localizer's clock is faked too: loading a model takes LOAD_S, a predict call PREDICT_S."""
     batch_sizes: list[int] = []
+    clock = [0.0]
+    monkeypatch.setattr(cnn_localizer, "time", types.SimpleNamespace(perf_counter=lambda: clock[0]))
 
     def load_model(path: Path) -> _FakeModel:
+        clock[0] += LOAD_S
         return _FakeModel(float(Path(path).stem.split("_")[-1]))
 
     def predict(model: _FakeModel, ranges: np.ndarray, batch_size: int) -> np.ndarray:
+        clock[0] += PREDICT_S
         batch_sizes.append(batch_size)
         k = model.offset
         n = len(ranges)
@@ -102,13 +120,22 @@ def test_localize_cnn_single_and_ensemble(tmp_path: Path, monkeypatch) -> None:
     ranges = np.arange(12, dtype=np.float32).reshape(4, 3)
     times = np.arange(4) * 0.1
 
-    single, cost = localize_cnn(paths[:1], ranges, times, batch_size=2)
-    assert tuple(single.columns) == TABLE_COLUMNS
-    np.testing.assert_allclose(single["x"], ranges.mean(axis=1))
-    assert single[["cov_xx", "cov_tt"]].isna().all().all() and (single["n_particles"] == 1).all()
-    assert cost >= 0 and batch_sizes == [2]
+    single = localize_cnn(paths[:1], ranges, times)
+    assert tuple(single.table.columns) == TABLE_COLUMNS
+    np.testing.assert_allclose(single.table["x"], ranges.mean(axis=1))
+    table = single.table
+    assert table[["cov_xx", "cov_tt"]].isna().all().all() and (table["n_particles"] == 1).all()
+    # Each scan alone, as on a robot: one predict call per scan and member; loading and the
+    # warm-up inference are setup, not part of any scan's time.
+    assert batch_sizes == [1] * 5
+    np.testing.assert_allclose(single.scan_seconds, PREDICT_S)
+    assert single.setup_s == pytest.approx(LOAD_S + PREDICT_S)
+    assert single.timing()["time_per_scan_s"] == pytest.approx(PREDICT_S)
 
-    ensemble = localize_cnn(paths, ranges, times).table
+    run = localize_cnn(paths, ranges, times)
+    np.testing.assert_allclose(run.scan_seconds, 3 * PREDICT_S)
+    assert run.setup_s == pytest.approx(3 * (LOAD_S + PREDICT_S))
+    ensemble = run.table
     np.testing.assert_allclose(ensemble["x"], ranges.mean(axis=1) + 1)
     np.testing.assert_allclose(ensemble["t"], times)
     assert (ensemble["n_particles"] == 3).all() and list(ensemble["step"]) == [0, 1, 2, 3]

@@ -38,30 +38,45 @@ def nearest_obstacle(grid: OccupancyGrid, poses: np.ndarray) -> np.ndarray:
     return out
 
 
-@settings(max_examples=60, deadline=None)
-@given(
-    st.integers(3, 30),
-    st.integers(3, 30),
-    st.floats(0.0, 0.3),
-    st.floats(0.0, 0.1),
-    st.sampled_from([0.02, 0.05, 0.1]),
-    st.floats(0.0, 4.0),
-    st.integers(0, 2**32 - 1),
-)
-def test_footprint_never_touches_an_obstacle(height, width, occupied, unknown, res, radius, seed):
+@st.composite
+def maps_with_room(draw: st.DrawFn) -> tuple[OccupancyGrid, float, int]:
+    """A random grid of free / occupied / unknown cells, a clearance radius and a seed, with a
+    free square carved in wherever the draw puts it: 2·radius + 2 cells wide, so some positions
+    are valid by construction (a 2 x 2 cell region at least) and no case has to be thrown away."""
+    radius = draw(st.floats(0.0, 4.0))  # cells
+    side = math.ceil(2 * radius) + 2
+    height, width = draw(st.integers(max(3, side), 30)), draw(st.integers(max(3, side), 30))
+    occupied, unknown = draw(st.floats(0.0, 0.3)), draw(st.floats(0.0, 0.1))
+    res = draw(st.sampled_from([0.02, 0.05, 0.1]))
+    seed = draw(st.integers(0, 2**32 - 1))
     rng = np.random.default_rng(seed)
     u = rng.random((height, width))
     codes = np.where(u < occupied, OCCUPIED, np.where(u < occupied + unknown, UNKNOWN, FREE))
+    row, col = draw(st.integers(0, height - side)), draw(st.integers(0, width - side))
+    codes[row : row + side, col : col + side] = FREE
     grid = OccupancyGrid(codes.astype(np.int8), res, (rng.normal(), rng.normal(), 0.0))
-    clearance = radius * res
-    try:
-        poses = sample_free_poses(grid, 50, clearance, rng)
-    except ValueError as err:
-        assert "has no free cell with clearance" in str(err)
-        return
+    return grid, radius * res, seed
+
+
+@settings(max_examples=60, deadline=None)
+@given(maps_with_room())
+def test_footprint_never_touches_an_obstacle(case: tuple[OccupancyGrid, float, int]) -> None:
+    grid, clearance, seed = case
+    poses = sample_free_poses(grid, 50, clearance, np.random.default_rng(seed))
     assert poses.shape == (50, 3) and poses.dtype == np.float64
     assert (nearest_obstacle(grid, poses) >= clearance - 1e-9).all()
     assert ((poses[:, 2] > -math.pi) & (poses[:, 2] <= math.pi)).all()
+
+
+def test_no_room_for_the_footprint_is_an_error() -> None:
+    """Free cells exist but none has the clearance: the error names map and radius."""
+    cells = np.zeros((12, 12), np.int8)
+    cells[::3, :] = OCCUPIED  # free corridors two cells (0.2 m) wide
+    grid = OccupancyGrid(cells, 0.1)
+    tight = sample_free_poses(grid, 10, 0.09, np.random.default_rng(0))
+    assert tight.shape == (10, 3) and (nearest_obstacle(grid, tight) >= 0.09).all()
+    with pytest.raises(ValueError, match=r"map corridors has no free cell with clearance 0\.11 m"):
+        sample_free_poses(grid, 1, 0.11, np.random.default_rng(0), map_name="corridors")
 
 
 def test_paper_map_poses_keep_the_robot_clear(stdr_maps_dir: Path) -> None:

@@ -119,10 +119,11 @@ def test_heading_wraps_across_pi() -> None:
         truth, increments = drive(400, 0.4, turn_rate, (0.0, 0.0, heading))
         odometry = integrate(truth[0], noisy_increments(increments, rng))
         z, z_cov = measure(truth, rng)
-        assert (z[:, 2] > 3.0).any() and (z[:, 2] < -3.0).any()
         fused = fuse_odometry(odometry, times(400), z, z_cov, FusionParams(*ODOM_ALPHAS, **EXACT))
         theta = fused.table["theta"].to_numpy()
+        # the estimate itself crosses ±π and stays wrapped
         assert ((theta > -math.pi) & (theta <= math.pi)).all()
+        assert (theta > 3.0).any() and (theta < -3.0).any()
         _, head = pose_errors(table_poses(fused.table), truth)
         assert head.max() < 0.2 and head[50:].mean() < 0.5 * pose_errors(z, truth)[1].mean()
         assert fused.rejected.sum() <= 2
@@ -174,15 +175,29 @@ def test_lost_filter_reinitialises_and_missing_measurements_predict() -> None:
 def test_single_network_without_covariance_uses_the_floor() -> None:
     truth, _ = drive(20, 0.5, 0.0, (0.0, 0.0, 0.0))
     z_cov = np.full((20, 3, 3), np.nan)
-    fused = fuse_odometry(truth, times(20), truth, z_cov, FusionParams(min_std_xy=0.1))
-    np.testing.assert_allclose(table_covariances(fused.table)[0], np.diag([0.01, 0.01, 0.05**2]))
+    params = FusionParams(min_std_xy=0.1, min_std_theta=0.07)
+    fused = fuse_odometry(truth, times(20), truth, z_cov, params)
+    np.testing.assert_allclose(table_covariances(fused.table)[0], np.diag([0.01, 0.01, 0.07**2]))
     assert np.isfinite(table_poses(fused.table)).all()
 
 
 def test_config_and_bad_params_are_rejected_clearly() -> None:
-    config = yaml.safe_load((CONF / "cnn_ekf.yaml").read_text())
-    assert config["name"] == "cnn_ekf" and config["kind"] == "fusion"
-    assert FusionParams.from_config(config["fusion"]) == FusionParams()
+    section = yaml.safe_load((CONF / "cnn_ekf.yaml").read_text())["fusion"]
+    # every key of the shipped section reaches its field, with the field's type
+    shipped = FusionParams.from_config(section)
+    for key, value in section.items():
+        assert getattr(shipped, key) == value, key
+        assert type(getattr(shipped, key)) is type(getattr(FusionParams(), key)), key
+    # the process noise, shipped and default, is 4 × the simulated odometry's variances
+    noise = yaml.safe_load((CONF.parent / "trajectory.yaml").read_text())["trajectory"]
+    for k in range(1, 5):
+        alpha = 4 * noise["odometry_noise"][f"alpha{k}"]
+        assert getattr(shipped, f"odom_alpha{k}") == pytest.approx(alpha)
+        assert getattr(FusionParams(), f"odom_alpha{k}") == pytest.approx(alpha)
+    # an int is accepted for a float parameter and stored as a float; other fields keep defaults
+    loaded = FusionParams.from_config({"min_std_xy": 1, "reinit_after": 3})
+    assert loaded == FusionParams(min_std_xy=1.0, reinit_after=3)
+    assert isinstance(loaded.min_std_xy, float)
     with pytest.raises(ValueError, match="unknown fusion parameter 'alpha1'"):
         FusionParams.from_config({"alpha1": 0.1})
     with pytest.raises(ValueError, match="'reinit_after' must be of type int"):

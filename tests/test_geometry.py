@@ -82,11 +82,20 @@ def test_axis_aligned_polyline_draws_like_the_rectangle(
     line_grid = rasterize(MapGeometry(2.5, 2.0, res, polylines=(line,)))
     rect_grid = rasterize(MapGeometry(2.5, 2.0, res, rects=(rect,)))
     np.testing.assert_array_equal(line_grid.cells, rect_grid.cells)
-    if thickness % 2 == 0:  # edges on cell boundaries: exactly w x h cells where inside the grid
-        rows = slice(max(round(rect.y / res), 0), round((rect.y + rect.h) / res))
-        cols = slice(max(round(rect.x / res), 0), round((rect.x + rect.w) / res))
-        assert rect_grid.occupied[rows, cols].all()
-        assert rect_grid.occupied.sum() == rect_grid.occupied[rows, cols].size
+    # By hand, in cells: the wall spans [x0 - t/2, x0 + length + t/2) along and [y0 - t/2,
+    # y0 + t/2) across; cell i's centre i + 1/2 lies in [a, b) for i = ceil(a - 1/2) ..
+    # ceil(b - 1/2) - 1, i.e. from start - ceil(t/2) to end + floor(t/2) - 1 (odd t: the edges
+    # pass through cell centres, the lower one inclusive). Clipped to the 50 x 40 cell grid.
+    lo, hi = thickness - thickness // 2, thickness // 2
+    along = (x0, x0 + length) if horizontal else (y0, y0 + length)
+    across = y0 if horizontal else x0
+    expected = np.zeros((40, 50), dtype=bool)
+    first, stop = (max(along[0] - lo, 0), along[1] + hi), (max(across - lo, 0), across + hi)
+    if horizontal:
+        expected[slice(*stop), slice(*first)] = True
+    else:
+        expected[slice(*first), slice(*stop)] = True
+    np.testing.assert_array_equal(line_grid.occupied, expected)
 
 
 def test_oblique_polyline_is_a_rotated_rectangle() -> None:
@@ -148,15 +157,15 @@ def test_paper_map_configs_are_compact() -> None:
         assert cfg["name"] == name and cfg["source"] == "geometry" and 10 <= shapes <= 60
 
 
-def test_every_map_config_builds(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("path", sorted(CONF_MAPS.glob("*.yaml")), ids=lambda p: p.stem)
+def test_every_map_config_builds(path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(REPO_ROOT)  # `source: file` paths are relative to the working directory
-    for path in sorted(CONF_MAPS.glob("*.yaml")):
-        cfg = yaml.safe_load(path.read_text())
-        assert cfg["name"] == path.stem
-        if cfg["source"] == "file" and not Path(cfg["path"]).is_file():
-            continue  # the example points outside the repository
-        grid = build_map(cfg)
-        assert grid.occupied.any() and grid.free.any()
+    cfg = yaml.safe_load(path.read_text())
+    assert cfg["name"] == path.stem
+    if cfg["source"] == "file" and not Path(cfg["path"]).is_file():
+        pytest.skip(f"{cfg['path']} lies outside the repository and is absent here")
+    grid = build_map(cfg)
+    assert grid.occupied.any() and grid.free.any()
 
 
 def test_build_map_from_file_resolves_against_cwd(

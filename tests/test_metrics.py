@@ -60,7 +60,7 @@ def test_position_statistics_and_shares() -> None:
     assert m["pos_err_mean_m"] == pytest.approx(errors.mean())
     assert m["pos_err_median_m"] == pytest.approx(0.3)
     assert m["pos_err_rmse_m"] == pytest.approx(np.sqrt(np.mean(errors**2)))
-    assert m["pos_err_p95_m"] == pytest.approx(np.percentile(errors, 95))
+    assert m["pos_err_p95_m"] == pytest.approx(0.6 + 0.8 * (2.0 - 0.6))  # linear, rank 3.8
     assert (m["frac_within_0_1m"], m["frac_within_0_25m"], m["frac_within_0_5m"]) == (
         pytest.approx(0.2),
         pytest.approx(0.4),
@@ -122,8 +122,11 @@ def test_metrics_json_is_stable_and_ordered(tmp_path) -> None:
     metrics = evaluate_all(truth, tables, {"amcl": 0.0123456789})
     assert list(metrics) == ["amcl", "cnn_single", "zz_new"]
     text = metrics_json(metrics)
-    assert text == metrics_json(evaluate_all(truth, tables, {"amcl": 0.0123456789}))
+    # the bytes do not depend on the order the tables come in
+    reordered = dict(reversed(tables.items()))
+    assert text == metrics_json(evaluate_all(truth, reordered, {"amcl": 0.0123456789}))
     doc = json.loads(text)
+    assert list(doc["amcl"]) == sorted(metrics["amcl"])
     assert doc["amcl"]["time_per_scan_s"] == 0.0123457
     assert "time_per_scan_s" not in doc["cnn_single"]
     assert round_sig(float("nan")) is None and round_sig(7) == 7
@@ -141,4 +144,5 @@ def test_evaluate_dir_writes_json_and_table2(tmp_path) -> None:
     doc = json.loads(out_json.read_text())
     assert doc["amcl"]["x_err_mean"] == 0.1 and doc["amcl"]["time_per_scan_s"] == 0.5
     md = out_md.read_text()
-    assert "| amcl | 0.1000 | 0.0000 |" in md and "500" in md
+    assert "| amcl | 0.1000 | 0.0000 |" in md
+    assert md.rstrip().splitlines()[-1].endswith("| 500 |")  # the modern table's time in ms

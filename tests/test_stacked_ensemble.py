@@ -11,7 +11,7 @@ import torch
 from scanloc.models.cnn1d import Cnn1d
 from scanloc.models.mlp import Mlp
 from scanloc.models.stacked_ensemble import StackedMembers, fit_stacked
-from scanloc.models.training import fit, load_model, read_model_file
+from scanloc.models.training import MACHINE_KEYS, fit, load_model, read_model_file
 
 CNN1D = {"_target_": "scanloc.models.cnn1d.Cnn1d", "pool_size": 8, "dropout": 0.2}
 COMMON = {"epochs": 2, "batch_size": 32, "lr": 0.006, "lr_decay": 0.01, "max_samples": 128}
@@ -48,9 +48,10 @@ def test_each_member_equals_fit_with_its_seed(scans: Path, tmp_path: Path, preci
     for name in ("model.pt", "last.pt", "history.csv"):
         assert (together[1] / name).read_bytes() == (tmp_path / "alone" / name).read_bytes()
     alone = json.loads((tmp_path / "alone" / "metrics.json").read_text())
-    assert {k: v for k, v in results[1].items() if k not in ("epoch_s", "stacked_members")} == {
-        k: v for k, v in alone.items() if k != "epoch_s"
-    }
+    # the model folder's metrics leave out what measures the machine (epoch_s, device)
+    left_out = (*MACHINE_KEYS, "stacked_members")
+    assert {k: v for k, v in results[1].items() if k not in left_out} == alone
+    assert results[1]["device"]["type"] == "cpu" and results[1]["epoch_s"] > 0
     # The members are different models.
     weights = [read_model_file(d / "last.pt")["state_dict"]["head.0.weight"] for d in together]
     assert not torch.equal(weights[0], weights[1]) and not torch.equal(weights[0], weights[2])

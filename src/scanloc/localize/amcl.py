@@ -1,31 +1,32 @@
 """Monte Carlo localization as ROS 1 amcl runs it (navigation, noetic: amcl_node.cpp and pf/*.c).
 
+The filter is assembled from parts, each in its own module:
+- motion model: `motion_model.py` (amcl's `diff` / `diff-corrected` odometry models);
+- sensor model: `sensor_models.py` (`likelihood_field`, `likelihood_field_prob`, `beam`);
+- proposal: `proposals.py` (where global initialisation and recovery put new particles);
+- resampler: `kld_resampling.py` (KLD sampling with random-pose injection);
+- estimator: `clustering.py` (the heaviest cluster's weighted mean and covariance).
+
 The filter, step by step, as in amcl's `laserReceived`:
 1. The first scan after an initialisation only records the odometry pose and weights the
-   particles (no motion update), and an estimate is published.
-2. Later scans update the filter only once the odometry has moved more than `update_min_d` along
-   the odometry frame's x OR y axis (each on its own, as amcl compares them) or turned more than
-   `update_min_a`. An update applies the motion model (`motion_model.py`) from the odometry pose
-   of the previous update, then the likelihood-field model (`likelihood_field.py`): weights are
-   multiplied by the model's p, normalised, and the recovery averages w_slow / w_fast follow the
-   mean weight (alphas `recovery_alpha_slow` / `_fast`).
-3. Every `resample_interval`-th update resamples with KLD sampling (Fox 2003): particles are drawn
-   one by one (with probability max(0, 1 - w_fast/w_slow) a random free pose instead), each into
-   a 0.5 m × 0.5 m × 10° histogram bin, until the count exceeds the KLD bound of the number of
-   occupied bins k, n = ⌈(k-1)/(2ε)·(1 - 2/(9(k-1)) + sqrt(2/(9(k-1)))·z)³⌉ clamped to
-   [min_particles, max_particles] (k = 1 gives max_particles). amcl feeds `kld_z` (0.99) into
-   the formula as the normal quantile z itself; that is kept.
-4. After a resampling (and on the first scan) the particles are clustered: occupied bins that
-   touch (26-neighbourhood) form a cluster; the estimate is the weighted mean of the heaviest
-   cluster, heading as the circular mean.
+   particles (no motion update), and publishes the cluster estimate that the initialisation
+   computed (amcl's pf_init / pf_init_model: uniform weights, before this sensor update).
+2. Later scans update the filter only once the odometry has moved more than `update_min_d`
+   along the odometry frame's x OR y axis (each on its own, as amcl compares them) or turned
+   more than `update_min_a`. An update applies the motion model from the odometry pose of the
+   previous update, then the sensor model: weights are multiplied by the model's factors,
+   normalised, and the recovery averages w_slow / w_fast follow the mean weight (alphas
+   `recovery_alpha_slow` / `_fast`; amcl_node.cpp's defaults 0.001 / 0.1 are what ROS 1 runs,
+   as its dynamic-reconfigure callback ignores the .cfg defaults of 0.0 on the first call).
+3. Every `resample_interval`-th update resamples (KLD sampling; with probability
+   max(0, 1 - w_fast/w_slow) a draw is a pose from the proposal instead), then clusters the
+   particles: the estimate is the heaviest cluster's weighted mean. Estimates are published
+   only then (and on the first scan), as amcl does; `publish_every_update` (a scanloc switch)
+   also publishes after updates that do not resample.
 
-Where scanloc departs from amcl (documented pitfalls):
-- Heading bins wrap at ±π (amcl bins the unwrapped heading, so a cluster straddling ±π splits).
-- The world→cell lookup is exact unless `map_half_cell_offset` asks for amcl's half-cell shift.
-- The covariance reported is the heaviest cluster's, 3 × 3: x/y block and θθ = -2·ln(R̄) as
-  amcl's cluster statistics, plus the x-θ and y-θ terms (θ deviations wrapped) that amcl leaves
-  at 0. (amcl publishes the whole particle set's x/y/θθ covariance instead.)
-- The bin histogram covers the map plus a 2 m margin; particles beyond it share the edge bins.
+Readings that are NaN are skipped by every sensor model (as amcl's likelihood field does); a
+scan of the wrong length is an error. `map_half_cell_offset` reproduces amcl's half-cell
+world→cell shift (conf/localizer/amcl_ros_exact.yaml); scanloc's default is the exact mapping.
 
 Between filter updates the estimate is the last published pose carried forward by odometry:
 pose = estimate ⊕ (odom at the estimate)⁻¹ ⊕ odom now, which is what amcl's published map→odom
@@ -38,36 +39,35 @@ count; the per-particle loops are numba-compiled.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-import numba
 import numpy as np
-import pandas as pd
 
+from scanloc.localize.clustering import bin_dims, cluster_labels, heaviest_cluster
 from scanloc.localize.config_params import params_from_config
-from scanloc.localize.estimates import estimate_table, wrap_angle
-from scanloc.localize.likelihood_field import beam_weights, build_likelihood_field, select_beams
+from scanloc.localize.estimates import Localization, estimate_table, wrap_angle
+from scanloc.localize.kld_resampling import resample_kld
+from scanloc.localize.likelihood_field_prob import converged
 from scanloc.localize.motion_model import ODOM_MODELS, odometry_delta, sample_motion
+from scanloc.localize.proposals import Proposal, UniformProposal
+from scanloc.localize.sensor_models import SENSOR_MODELS, LaserGeometry, build_sensor_model
 from scanloc.sensor.laser import LaserSpec
 from scanloc.world.occupancy_grid import OccupancyGrid
 
-BIN_XY: float = 0.5  # metres, amcl's pf_kdtree cell size in x and y
-BIN_THETA: float = math.radians(10.0)  # amcl's pf_kdtree cell size in heading
-BIN_MARGIN: float = 2.0  # metres of histogram around the map
 _CONFIG_META_KEYS = frozenset({"name", "kind", "mode", "seed"})
 
 
 @dataclass(frozen=True)
 class AmclParams:
-    """amcl's parameters, named as in ROS 1 amcl, with ROS 1's defaults.
+    """amcl's parameters, named as in ROS 1 amcl, with ROS 1's defaults (amcl_node.cpp).
 
-    Exception: the recovery alphas default to 0.001 / 0.1 (the values the ROS wiki recommends and
-    the paper-spec §7 uses); ROS 1's code default is 0.0 for both, which disables recovery.
     `odom_alpha5` only matters for amcl's omni models, which scanloc does not implement; it is
     accepted so that configs can carry it. `laser_min_range` / `laser_max_range` <= 0 mean "use
-    the scanner's". `map_half_cell_offset` and `selective_resampling` are scanloc / later-ROS
-    switches (default off, as in ROS 1).
+    the scanner's". scanloc's own switches (ROS has none of them): `map_half_cell_offset`
+    (true: amcl's half-cell world→cell shift), `publish_every_update` and the beam model's
+    range table `beam_lut_resolution` (m) / `beam_lut_angles` (see beam_model.py).
     """
 
     min_particles: int = 100
@@ -88,9 +88,16 @@ class AmclParams:
     laser_max_range: float = -1.0
     laser_max_beams: int = 30
     laser_z_hit: float = 0.95
+    laser_z_short: float = 0.1
+    laser_z_max: float = 0.05
     laser_z_rand: float = 0.05
     laser_sigma_hit: float = 0.2
+    laser_lambda_short: float = 0.1
     laser_likelihood_max_dist: float = 2.0
+    do_beamskip: bool = False
+    beam_skip_distance: float = 0.5
+    beam_skip_threshold: float = 0.3
+    beam_skip_error_threshold: float = 0.9
     odom_model_type: str = "diff"
     odom_alpha1: float = 0.2
     odom_alpha2: float = 0.2
@@ -98,6 +105,9 @@ class AmclParams:
     odom_alpha4: float = 0.2
     odom_alpha5: float = 0.2
     map_half_cell_offset: bool = False
+    publish_every_update: bool = False
+    beam_lut_resolution: float = 0.05
+    beam_lut_angles: int = 360
 
     def __post_init__(self) -> None:
         if not 1 <= self.min_particles <= self.max_particles:
@@ -111,9 +121,10 @@ class AmclParams:
             raise ValueError(f"resample_interval must be >= 1, got {self.resample_interval}")
         if self.update_min_d < 0 or self.update_min_a < 0:
             raise ValueError("update_min_d and update_min_a must be >= 0")
-        if self.laser_model_type != "likelihood_field":
+        if self.laser_model_type not in SENSOR_MODELS:
             raise ValueError(
-                f"laser_model_type must be 'likelihood_field', got {self.laser_model_type!r}"
+                f"laser_model_type must be one of {sorted(SENSOR_MODELS)}, "
+                f"got {self.laser_model_type!r}"
             )
         if self.odom_model_type not in ODOM_MODELS:
             raise ValueError(
@@ -127,6 +138,11 @@ class AmclParams:
             raise ValueError("recovery_alpha_slow / _fast must lie in [0, 1]")
         if not (self.laser_sigma_hit > 0 and self.laser_likelihood_max_dist > 0):
             raise ValueError("laser_sigma_hit and laser_likelihood_max_dist must be > 0")
+        weights = (self.laser_z_hit, self.laser_z_short, self.laser_z_max, self.laser_z_rand)
+        if min(weights) < 0 or self.laser_lambda_short <= 0:
+            raise ValueError("laser_z_* must be >= 0 and laser_lambda_short > 0")
+        if not (0 <= self.beam_skip_threshold <= 1 and 0 <= self.beam_skip_error_threshold <= 1):
+            raise ValueError("beam_skip_threshold and beam_skip_error_threshold must lie in [0, 1]")
 
     @classmethod
     def from_config(cls, config: Mapping[str, object]) -> AmclParams:
@@ -155,236 +171,6 @@ class Estimate:
     updated: bool
 
 
-def kld_limit(k: int, min_particles: int, max_particles: int, kld_err: float, kld_z: float) -> int:
-    """amcl's pf_resample_limit: particles needed for k occupied bins (KLD bound, clamped)."""
-    return int(_kld_limit(k, min_particles, max_particles, kld_err, kld_z))
-
-
-@numba.njit(cache=True)
-def _kld_limit(k: int, min_n: int, max_n: int, err: float, z: float) -> int:
-    if k < 1 or k > max_n or k == 1:
-        return max_n
-    b = 2.0 / (9.0 * (k - 1))
-    x = 1.0 - b + math.sqrt(b) * z
-    n = math.ceil((k - 1) / (2.0 * err) * x * x * x)
-    return min(max(n, min_n), max_n)
-
-
-@numba.njit(cache=True, inline="always")
-def _bin_of(x: float, y: float, th: float, lo_x: int, lo_y: int, nx: int, ny: int, nt: int) -> int:
-    kx = min(max(math.floor(x / BIN_XY) - lo_x, 0), nx - 1)
-    ky = min(max(math.floor(y / BIN_XY) - lo_y, 0), ny - 1)
-    kt = math.floor((th + math.pi) / BIN_THETA) % nt
-    return (kx * ny + ky) * nt + kt
-
-
-@numba.njit(cache=True)
-def _resample_kld(
-    poses: np.ndarray,
-    weights: np.ndarray,
-    u_pick: np.ndarray,
-    u_inject: np.ndarray,
-    w_diff: float,
-    inject_u: np.ndarray,
-    free_xy: np.ndarray,
-    min_n: int,
-    max_n: int,
-    err: float,
-    z: float,
-    dims: np.ndarray,
-    occupied: np.ndarray,
-    out: np.ndarray,
-) -> int:
-    """amcl's pf_update_resample: draw until the KLD bound of the occupied bins is exceeded."""
-    n = poses.shape[0]
-    cum = np.empty(n + 1)
-    cum[0] = 0.0
-    for i in range(n):
-        cum[i + 1] = cum[i] + weights[i]
-    lo_x, lo_y, nx, ny, nt = dims[0], dims[1], dims[2], dims[3], dims[4]
-    touched = np.empty(max_n, dtype=np.int64)
-    k = 0
-    limit = _kld_limit(0, min_n, max_n, err, z)
-    count = 0
-    while count < max_n:
-        if u_inject[count] < w_diff:
-            cell = min(int(inject_u[count, 0] * free_xy.shape[0]), free_xy.shape[0] - 1)
-            out[count, 0] = free_xy[cell, 0]
-            out[count, 1] = free_xy[cell, 1]
-            out[count, 2] = inject_u[count, 1] * 2.0 * math.pi - math.pi
-        else:
-            j = np.searchsorted(cum, u_pick[count], side="right") - 1
-            j = min(max(j, 0), n - 1)
-            out[count, 0] = poses[j, 0]
-            out[count, 1] = poses[j, 1]
-            out[count, 2] = poses[j, 2]
-        b = _bin_of(out[count, 0], out[count, 1], out[count, 2], lo_x, lo_y, nx, ny, nt)
-        if occupied[b] == 0:
-            occupied[b] = 1
-            touched[k] = b
-            k += 1
-            limit = _kld_limit(k, min_n, max_n, err, z)
-        count += 1
-        if count > limit:
-            break
-    for i in range(k):
-        occupied[touched[i]] = 0
-    return count
-
-
-@numba.njit(cache=True)
-def _cluster_labels(poses: np.ndarray, dims: np.ndarray, labels_grid: np.ndarray) -> np.ndarray:
-    """Label particles by connected occupied bins (26-neighbourhood, heading wraps at ±π).
-
-    `labels_grid` is a work array of -1 over all bins; it is left as it was found.
-    """
-    lo_x, lo_y, nx, ny, nt = dims[0], dims[1], dims[2], dims[3], dims[4]
-    n = poses.shape[0]
-    bins = np.empty(n, dtype=np.int64)
-    occupied = np.empty(n, dtype=np.int64)
-    n_occ = 0
-    for i in range(n):
-        b = _bin_of(poses[i, 0], poses[i, 1], poses[i, 2], lo_x, lo_y, nx, ny, nt)
-        bins[i] = b
-        if labels_grid[b] == -1:
-            labels_grid[b] = -2
-            occupied[n_occ] = b
-            n_occ += 1
-    stack = np.empty(n_occ, dtype=np.int64)
-    n_clusters = 0
-    for s in range(n_occ):
-        if labels_grid[occupied[s]] != -2:
-            continue
-        labels_grid[occupied[s]] = n_clusters
-        top = 0
-        stack[top] = occupied[s]
-        top += 1
-        while top > 0:
-            top -= 1
-            b = stack[top]
-            kt = b % nt
-            ky = (b // nt) % ny
-            kx = b // (nt * ny)
-            for dx in range(-1, 2):
-                jx = kx + dx
-                if jx < 0 or jx >= nx:
-                    continue
-                for dy in range(-1, 2):
-                    jy = ky + dy
-                    if jy < 0 or jy >= ny:
-                        continue
-                    for dt in range(-1, 2):
-                        jt = (kt + dt) % nt
-                        nb = (jx * ny + jy) * nt + jt
-                        if labels_grid[nb] == -2:
-                            labels_grid[nb] = n_clusters
-                            stack[top] = nb
-                            top += 1
-        n_clusters += 1
-    labels = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        labels[i] = labels_grid[bins[i]]
-    for s in range(n_occ):
-        labels_grid[occupied[s]] = -1
-    return labels
-
-
-@numba.njit(cache=True)
-def _heaviest_cluster(
-    poses: np.ndarray, weights: np.ndarray, labels: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted mean and 3 × 3 covariance of the heaviest cluster (amcl's pf_cluster_stats)."""
-    n_clusters = labels.max() + 1
-    cw = np.zeros(n_clusters)
-    for i in range(poses.shape[0]):
-        cw[labels[i]] += weights[i]
-    best = 0
-    for c in range(1, n_clusters):
-        if cw[c] > cw[best]:  # the first of equal weights wins, as in amcl
-            best = c
-    w = 0.0
-    sx = 0.0
-    sy = 0.0
-    sc = 0.0
-    ss = 0.0
-    sxx = 0.0
-    sxy = 0.0
-    syy = 0.0
-    for i in range(poses.shape[0]):
-        if labels[i] != best:
-            continue
-        wi = weights[i]
-        w += wi
-        sx += wi * poses[i, 0]
-        sy += wi * poses[i, 1]
-        sc += wi * math.cos(poses[i, 2])
-        ss += wi * math.sin(poses[i, 2])
-        sxx += wi * poses[i, 0] * poses[i, 0]
-        sxy += wi * poses[i, 0] * poses[i, 1]
-        syy += wi * poses[i, 1] * poses[i, 1]
-    mean = np.empty(3)
-    cov = np.zeros((3, 3))
-    if w <= 0.0:
-        mean[:] = np.nan
-        return mean, cov
-    mean[0] = sx / w
-    mean[1] = sy / w
-    mean[2] = math.atan2(ss, sc)
-    cov[0, 0] = sxx / w - mean[0] * mean[0]
-    cov[0, 1] = sxy / w - mean[0] * mean[1]
-    cov[1, 1] = syy / w - mean[1] * mean[1]
-    resultant = min(math.sqrt(sc * sc + ss * ss) / w, 1.0)
-    cov[2, 2] = -2.0 * math.log(resultant) if resultant > 0.0 else math.inf
-    sxt = 0.0
-    syt = 0.0
-    for i in range(poses.shape[0]):
-        if labels[i] != best:
-            continue
-        dt = poses[i, 2] - mean[2]
-        dt = math.atan2(math.sin(dt), math.cos(dt))
-        sxt += weights[i] * (poses[i, 0] - mean[0]) * dt
-        syt += weights[i] * (poses[i, 1] - mean[1]) * dt
-    cov[0, 2] = sxt / w
-    cov[1, 2] = syt / w
-    cov[1, 0] = cov[0, 1]
-    cov[2, 0] = cov[0, 2]
-    cov[2, 1] = cov[1, 2]
-    return mean, cov
-
-
-def cluster_estimate(
-    poses: np.ndarray, weights: np.ndarray, dims: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(mean, cov, labels) of the heaviest cluster of a weighted particle set.
-
-    `dims` = (lo_x, lo_y, nx, ny, n_theta) of the bin histogram; by default it spans the
-    particles.
-    """
-    poses = np.ascontiguousarray(poses, dtype=np.float64)
-    weights = np.ascontiguousarray(weights, dtype=np.float64)
-    if dims is None:
-        dims = _bin_dims(
-            float(poses[:, 0].min()),
-            float(poses[:, 1].min()),
-            float(poses[:, 0].max()),
-            float(poses[:, 1].max()),
-        )
-    labels_grid = np.full(int(np.prod(dims[2:])), -1, dtype=np.int64)
-    labels = _cluster_labels(poses, dims, labels_grid)
-    mean, cov = _heaviest_cluster(poses, weights, labels)
-    return mean, cov, labels
-
-
-def _bin_dims(x_min: float, y_min: float, x_max: float, y_max: float) -> np.ndarray:
-    """(lo_x, lo_y, nx, ny, n_theta) of a histogram with amcl's bins covering a box + margin."""
-    lo_x = math.floor((x_min - BIN_MARGIN) / BIN_XY)
-    lo_y = math.floor((y_min - BIN_MARGIN) / BIN_XY)
-    nx = math.floor((x_max + BIN_MARGIN) / BIN_XY) - lo_x + 1
-    ny = math.floor((y_max + BIN_MARGIN) / BIN_XY) - lo_y + 1
-    nt = round(2.0 * math.pi / BIN_THETA)
-    return np.array([lo_x, lo_y, nx, ny, nt], dtype=np.int64)
-
-
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a ⊕ b: pose b (given in a's frame) expressed in a's parent frame; θ wrapped."""
     c, s = math.cos(a[2]), math.sin(a[2])
@@ -405,7 +191,11 @@ def inverse(a: np.ndarray) -> np.ndarray:
 
 
 class Amcl:
-    """amcl's particle filter on an occupancy grid with a planar laser at the robot centre."""
+    """amcl's particle filter on an occupancy grid with a planar laser at the robot centre.
+
+    `proposal` is where global initialisation and recovery draw new particles; by default
+    amcl's uniform free-space proposal.
+    """
 
     def __init__(
         self,
@@ -413,22 +203,14 @@ class Amcl:
         laser_spec: LaserSpec,
         params: AmclParams | None = None,
         seed: int = 0,
+        proposal: Proposal | None = None,
     ) -> None:
         self.grid = grid
         self.spec = laser_spec
         self.params = params or AmclParams()
         p = self.params
         self.rng = np.random.default_rng(seed)
-        free_rows, free_cols = np.nonzero(grid.free)
-        if free_rows.size == 0:
-            raise ValueError("the map has no free cell: amcl needs free space to place particles")
-        offset = 0.5 if p.map_half_cell_offset else 0.0
-        self._free_xy = np.column_stack(
-            [
-                grid.origin[0] + (free_cols + 0.5 - offset) * grid.resolution,
-                grid.origin[1] + (free_rows + 0.5 - offset) * grid.resolution,
-            ]
-        )
+        self.proposal = proposal or UniformProposal(grid, p.map_half_cell_offset)
         self.range_min = (
             max(laser_spec.range_min, p.laser_min_range)
             if p.laser_min_range > 0
@@ -439,18 +221,12 @@ class Amcl:
             if p.laser_max_range > 0
             else laser_spec.range_max
         )
-        self.field = build_likelihood_field(
-            grid,
-            z_hit=p.laser_z_hit,
-            z_rand=p.laser_z_rand,
-            sigma_hit=p.laser_sigma_hit,
-            max_dist=p.laser_likelihood_max_dist,
-            range_max=self.range_max,
-            half_cell_offset=p.map_half_cell_offset,
+        laser = LaserGeometry(
+            laser_spec.beam_angles(), self.range_min, self.range_max, p.laser_max_beams
         )
-        self._angles = laser_spec.beam_angles()
+        self.sensor_model = build_sensor_model(grid, laser, p)
         width_m, height_m = grid.size_m
-        self._dims = _bin_dims(
+        self._dims = bin_dims(
             grid.origin[0], grid.origin[1], grid.origin[0] + width_m, grid.origin[1] + height_m
         )
         n_bins = int(np.prod(self._dims[2:]))
@@ -460,6 +236,7 @@ class Amcl:
         self.weights = np.empty(0)
         self.w_slow = 0.0
         self.w_fast = 0.0
+        self.converged = False
         self._initialised = False
         self._pf_init = False
         self._pf_odom_pose = np.zeros(3)
@@ -487,23 +264,28 @@ class Amcl:
         n = self.params.max_particles
         poses = self.rng.multivariate_normal(mean, cov, size=n, method="eigh")
         poses[:, 2] = wrap_angle(poses[:, 2])
-        self._reset(poses)
+        self.reset(poses, np.full(n, 1.0 / n))
 
     def initialize_global(self) -> None:
-        """Global localization: max_particles at random free cells, headings uniform."""
+        """Global localization: max_particles drawn from the proposal (amcl: uniform over the
+        free space), weighted by prior / proposal density (1 for the uniform proposal)."""
         n = self.params.max_particles
-        self._reset(self._random_free_poses(self.rng.random((n, 2))))
+        poses = self.proposal.sample(n, self.rng)
+        self.reset(poses, np.full(n, 1.0 / n))
 
-    def _random_free_poses(self, u: np.ndarray) -> np.ndarray:
-        cells = np.minimum((u[:, 0] * len(self._free_xy)).astype(np.int64), len(self._free_xy) - 1)
-        return np.column_stack([self._free_xy[cells], u[:, 1] * 2.0 * math.pi - math.pi])
+    def reset(self, poses: np.ndarray, weights: np.ndarray) -> None:
+        """A new particle set (weights normalised here); the next scan starts the filter.
 
-    def _reset(self, poses: np.ndarray) -> None:
+        As amcl's pf_init, the cluster estimate is computed now, from these weights.
+        """
         self.poses = np.ascontiguousarray(poses, dtype=np.float64)
-        self.weights = np.full(len(poses), 1.0 / len(poses))
+        weights = np.asarray(weights, dtype=np.float64)
+        self.weights = weights / weights.sum()
         self.w_slow = self.w_fast = 0.0
+        self.converged = False
         self._initialised = True
         self._pf_init = False
+        self._est_pose, self._est_cov = self._cluster_estimate()
 
     # -- the filter -------------------------------------------------------------------------
     def update(self, odom_pose: np.ndarray, ranges: np.ndarray) -> Estimate:
@@ -519,18 +301,15 @@ class Amcl:
                 f"scan has shape {ranges.shape}, expected ({self.spec.num_beams},) ranges "
                 "(LaserSpec.num_beams)"
             )
-        if np.isnan(ranges).any():
-            raise ValueError(
-                "scan contains NaN ranges; expected metres, with 'no return' as a fill value"
-            )
         p = self.params
-        publish = False
+        first = not self._pf_init
         resampled = False
-        if not self._pf_init:
+        if first:
             self._pf_odom_pose = odom_pose.copy()
             self._pf_init = True
             self._resample_count = 0
-            do_update = publish = True
+            do_update = True
+            self._est_odom = odom_pose.copy()  # the initialisation's estimate, published now
         else:
             delta = odometry_delta(self._pf_odom_pose, odom_pose)
             do_update = (
@@ -544,25 +323,23 @@ class Amcl:
                     self.poses, self._pf_odom_pose, odom_pose, p.odom_model_type, alphas, self.rng
                 )
         if do_update:
-            self._sensor_update(ranges)
+            self.sensor_update(ranges)
             self._pf_odom_pose = odom_pose.copy()
             self._resample_count += 1
             if self._resample_count % p.resample_interval == 0:
-                self._resample()
+                self.resample()
                 resampled = True
-        if resampled or publish:
-            labels = _cluster_labels(self.poses, self._dims, self._bin_labels)
-            mean, cov = _heaviest_cluster(self.poses, self.weights, labels)
-            self._est_pose, self._est_cov, self._est_odom = mean, cov, odom_pose.copy()
+        if resampled or (do_update and p.publish_every_update):
+            self._est_pose, self._est_cov = self._cluster_estimate()
+            self._est_odom = odom_pose.copy()
         carried = compose(self._est_pose, compose(inverse(self._est_odom), odom_pose))
         return Estimate(carried, self._est_cov.copy(), len(self.poses), bool(do_update))
 
-    def _sensor_update(self, ranges: np.ndarray) -> None:
-        """amcl's pf_update_sensor with the likelihood-field model."""
-        r, b = select_beams(
-            ranges, self._angles, self.range_min, self.range_max, self.params.laser_max_beams
-        )
-        self.weights = self.weights * beam_weights(self.field, self.poses, r, b)
+    def sensor_update(self, ranges: np.ndarray) -> None:
+        """amcl's pf_update_sensor: weights times the sensor model's factors, normalised; the
+        recovery averages follow the mean unnormalised weight."""
+        factors = self.sensor_model(self.poses, ranges, self.converged)
+        self.weights = self.weights * factors
         total = float(self.weights.sum())
         n = len(self.weights)
         if total > 0.0:
@@ -582,8 +359,8 @@ class Amcl:
         else:
             self.weights = np.full(n, 1.0 / n)
 
-    def _resample(self) -> None:
-        """amcl's pf_update_resample (KLD sampling with random-pose recovery)."""
+    def resample(self) -> None:
+        """amcl's pf_update_resample: KLD sampling with injection from the proposal."""
         p = self.params
         n_eff = 1.0 / float(np.sum(self.weights**2))
         if p.selective_resampling and n_eff > 0.5 * len(self.weights):
@@ -593,16 +370,19 @@ class Amcl:
         m = p.max_particles
         u_inject = self.rng.random(m)
         u_pick = self.rng.random(m)
-        inject_u = self.rng.random((m, 2)) if w_diff > 0.0 else np.zeros((m, 2))
-        out = np.empty((m, 3))
-        count = _resample_kld(
+        if w_diff > 0.0:
+            inject_poses, inject_weights = self.injection(m)
+        else:
+            inject_poses, inject_weights = np.zeros((m, 3)), np.zeros(m)
+        out, out_weights = np.empty((m, 3)), np.empty(m)
+        count = resample_kld(
             self.poses,
             self.weights,
             u_pick,
             u_inject,
             w_diff,
-            inject_u,
-            self._free_xy,
+            inject_poses,
+            inject_weights,
             p.min_particles,
             m,
             p.kld_err,
@@ -610,11 +390,36 @@ class Amcl:
             self._dims,
             self._bin_occupied,
             out,
+            out_weights,
         )
         if w_diff > 0.0:  # amcl resets the averages to avoid spiralling into randomness
             self.w_slow = self.w_fast = 0.0
         self.poses = np.ascontiguousarray(out[:count])
-        self.weights = np.full(count, 1.0 / count)
+        self.weights = out_weights[:count] / out_weights[:count].sum()
+        self.converged = converged(self.poses)
+
+    def injection(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """m poses from the proposal for recovery, and their weights (1: amcl's uniform poses,
+        which sample the prior directly)."""
+        return self.proposal.sample(m, self.rng), np.ones(m)
+
+    def warm_up(self, ranges: np.ndarray) -> None:
+        """Run every compiled kernel once on a copy (numba loads or compiles on the first call),
+        so that timed updates measure the filter, not the compiler. The state is unchanged."""
+        rng_state = self.rng.bit_generator.state
+        poses = self.poses[:4].copy() if len(self.poses) >= 4 else np.zeros((4, 3))
+        self.sensor_model(poses, np.asarray(ranges), False)
+        sample_motion(poses, np.zeros(3), np.array([1.0, 0.0, 0.1]), "diff", (0.1,) * 4, self.rng)
+        saved = (self.poses, self.weights, self.w_slow, self.w_fast, self.converged)
+        self.poses, self.weights = poses, np.full(4, 0.25)
+        self.resample()
+        self._cluster_estimate()
+        self.poses, self.weights, self.w_slow, self.w_fast, self.converged = saved
+        self.rng.bit_generator.state = rng_state
+
+    def _cluster_estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        labels = cluster_labels(self.poses, self._dims, self._bin_labels)
+        return heaviest_cluster(self.poses, self.weights, labels)
 
 
 def run_amcl(
@@ -625,15 +430,19 @@ def run_amcl(
     params: AmclParams | None = None,
     mode: str = "tracking",
     seed: int = 0,
-) -> pd.DataFrame:
-    """Run amcl over a driven trajectory; one row per scan in the shared per-step table format.
+    proposal: Proposal | None = None,
+) -> Localization:
+    """Run amcl over a driven trajectory: the per-step table and what each scan cost.
 
     `trajectory` needs `times`, `truth` and `odometry` arrays (see trajectory.Trajectory).
     Tracking starts from the true first pose with the initial_cov_* covariance; global mode
-    from particles uniform over the free space. amcl updates its filter only after
-    update_min_d / update_min_a of motion and re-estimates only when it resamples; the rows in
-    between hold the last estimate carried forward by odometry (what amcl's map→odom transform
-    gives), with that estimate's covariance.
+    from particles drawn from the proposal (uniform over the free space by default). amcl
+    updates its filter only after update_min_d / update_min_a of motion and re-estimates only
+    when it resamples; the rows in between hold the last estimate carried forward by odometry
+    (what amcl's map→odom transform gives), with that estimate's covariance.
+
+    Setup (the sensor model's tables, the kernels' first call) is timed apart from the
+    per-scan updates.
     """
     if mode not in ("tracking", "global"):
         raise ValueError(f"mode must be 'tracking' or 'global', got {mode!r}")
@@ -646,16 +455,24 @@ def run_amcl(
             f"ranges must have shape (T, B) with T = {len(odometry)} trajectory steps, "
             f"got {ranges.shape}"
         )
-    amcl = Amcl(grid, spec, params, seed=seed)
+    start = time.perf_counter()
+    amcl = Amcl(grid, spec, params, seed=seed, proposal=proposal)
     if mode == "tracking":
         amcl.initialize_pose(truth[0])
     else:
         amcl.initialize_global()
-    estimates = [amcl.update(odometry[step], ranges[step]) for step in range(len(odometry))]
-    return estimate_table(
+    amcl.warm_up(ranges[0])
+    setup_s = time.perf_counter() - start
+    estimates, seconds = [], np.empty(len(odometry))
+    for step in range(len(odometry)):
+        tick = time.perf_counter()
+        estimates.append(amcl.update(odometry[step], ranges[step]))
+        seconds[step] = time.perf_counter() - tick
+    table = estimate_table(
         np.arange(len(odometry)),
         times,
         np.array([est.mean for est in estimates]),
         np.array([est.cov for est in estimates]),
         np.array([est.n_particles for est in estimates]),
     )
+    return Localization(table, setup_s, seconds)

@@ -16,20 +16,10 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
-import pandas as pd
 
-from scanloc.localize.estimates import estimate_table, wrap_angle
-
-
-class CnnLocalization(NamedTuple):
-    """The per-step estimate table and the prediction cost (kept out of the table so that the
-    table is byte-deterministic while the timing is not)."""
-
-    table: pd.DataFrame
-    time_per_scan_s: float
+from scanloc.localize.estimates import Localization, estimate_table, wrap_angle
 
 
 def ensemble_mean_and_cov(preds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -59,13 +49,13 @@ def ensemble_mean_and_cov(preds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def localize_cnn(
-    model_paths: Sequence[Path], ranges: np.ndarray, times: np.ndarray, batch_size: int = 512
-) -> CnnLocalization:
+    model_paths: Sequence[Path], ranges: np.ndarray, times: np.ndarray
+) -> Localization:
     """Predict each step's pose from its scan with one model (`cnn_single`) or several
     (`cnn_ensemble`: circular mean and members' covariance).
 
-    `time_per_scan_s` is the wall time of the batched predictions of all members divided by
-    the number of scans (model loading excluded): the throughput cost of one estimate.
+    Scans are localized one at a time, as on a robot: each scan's time is the inference of all
+    members on that scan alone. Loading the models and a first (warm-up) inference are setup.
     """
     # Imported here so that the table maths can be used without loading torch.
     from scanloc.models.training import load_model, predict
@@ -78,16 +68,22 @@ def localize_cnn(
             raise FileNotFoundError(f"{path}: model checkpoint not found")
     ranges = np.asarray(ranges, dtype=np.float32)
     times = np.asarray(times, dtype=np.float64)
-    if ranges.ndim != 2:
-        raise ValueError(f"ranges must have shape (T, beams), got {ranges.shape}")
+    if ranges.ndim != 2 or ranges.shape[0] < 1:
+        raise ValueError(f"ranges must have shape (T >= 1, beams), got {ranges.shape}")
     if times.shape != (ranges.shape[0],):
         raise ValueError(f"times must have shape ({ranges.shape[0]},), got {times.shape}")
-    models = [load_model(path) for path in paths]
     start = time.perf_counter()
-    preds = np.stack([np.asarray(predict(m, ranges, batch_size), np.float64) for m in models])
-    elapsed = time.perf_counter() - start
-    if preds.shape != (len(paths), ranges.shape[0], 3):
-        raise ValueError(f"predict returned shape {preds.shape[1:]}, expected ({len(ranges)}, 3)")
+    models = [load_model(path) for path in paths]
+    for model in models:
+        predict(model, ranges[:1], 1)
+    setup_s = time.perf_counter() - start
+    preds = np.empty((len(paths), ranges.shape[0], 3))
+    seconds = np.empty(ranges.shape[0])
+    for step in range(ranges.shape[0]):
+        tick = time.perf_counter()
+        for k, model in enumerate(models):
+            preds[k, step] = np.asarray(predict(model, ranges[step : step + 1], 1))[0]
+        seconds[step] = time.perf_counter() - tick
     mean, cov = ensemble_mean_and_cov(preds)
     table = estimate_table(np.arange(len(times)), times, mean, cov, len(paths))
-    return CnnLocalization(table, elapsed / max(ranges.shape[0], 1))
+    return Localization(table, setup_s, seconds)

@@ -8,6 +8,11 @@ Kalman filter: 1). Evaluation and report read this format; localizers build it h
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
+from typing import NamedTuple
+
+import numba
 import numpy as np
 import pandas as pd
 
@@ -35,9 +40,42 @@ COV_INDEX: dict[str, tuple[int, int]] = {
 }
 
 
+class Localization(NamedTuple):
+    """A localizer's output: the per-step table, and what it cost (kept out of the table, so
+    that the table is byte-deterministic while the timing is not).
+
+    Every localizer is timed alike: `scan_seconds` holds the wall time of each scan's own work
+    (one filter update, or one network inference for that scan alone), and `setup_s` the
+    one-off work before the first scan (map tables, model loading, compilation).
+    `counts` carries event counts a localizer reports (e.g. gate rejections).
+    """
+
+    table: pd.DataFrame
+    setup_s: float
+    scan_seconds: np.ndarray
+    counts: Mapping[str, int] | None = None
+
+    def timing(self) -> dict[str, float | int]:
+        """What the localize stage writes to <method>_timing.json."""
+        seconds = np.asarray(self.scan_seconds, dtype=np.float64)
+        return {
+            "time_per_scan_s": float(seconds.mean()) if seconds.size else float("nan"),
+            "time_per_scan_median_s": float(np.median(seconds)) if seconds.size else float("nan"),
+            "time_per_scan_max_s": float(seconds.max()) if seconds.size else float("nan"),
+            "setup_s": float(self.setup_s),
+            **(self.counts or {}),
+        }
+
+
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
     """Angles wrapped to (−π, π]."""
     return np.pi - np.mod(np.pi - np.asarray(angle, dtype=np.float64), 2.0 * np.pi)
+
+
+@numba.njit(cache=True, inline="always")
+def wrap_pi(angle: float) -> float:
+    """One angle wrapped to (−π, π] in compiled code, as wrap_angle does (no trigonometry)."""
+    return math.pi - np.mod(math.pi - angle, 2.0 * math.pi)
 
 
 def estimate_table(

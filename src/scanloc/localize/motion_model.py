@@ -21,7 +21,7 @@ import math
 import numba
 import numpy as np
 
-from scanloc.localize.estimates import wrap_angle
+from scanloc.localize.estimates import wrap_angle, wrap_pi
 
 ODOM_MODELS: tuple[str, ...] = ("diff", "diff-corrected")
 MIN_TRANS_FOR_BEARING: float = 0.01  # metres; amcl's threshold below which rot1 = 0
@@ -88,18 +88,18 @@ def _apply_motion(
     sigmas: np.ndarray,
     normals: np.ndarray,
 ) -> None:
-    """Move every particle by its noisy (rot1, trans, rot2); headings are kept in (-π, π]."""
+    """Move every particle by its noisy (rot1, trans, rot2); headings are kept in (-π, π].
+
+    The noisy rotations need no wrapping of their own: only the heading's cosine, sine and
+    final wrap use them."""
     for i in numba.prange(poses.shape[0]):
         r1 = rot1 - sigmas[0] * normals[i, 0]
-        r1 = math.atan2(math.sin(r1), math.cos(r1))
         tr = trans - sigmas[1] * normals[i, 1]
         r2 = rot2 - sigmas[2] * normals[i, 2]
-        r2 = math.atan2(math.sin(r2), math.cos(r2))
         heading = poses[i, 2] + r1
         poses[i, 0] += tr * math.cos(heading)
         poses[i, 1] += tr * math.sin(heading)
-        theta = poses[i, 2] + r1 + r2
-        poses[i, 2] = math.atan2(math.sin(theta), math.cos(theta))
+        poses[i, 2] = wrap_pi(heading + r2)
 
 
 def sample_motion(

@@ -13,6 +13,12 @@ The route (paper §4.4: "a robot steered through map 1"):
    acceleration limits, integrated exactly over each 1/rate_hz step.
 Every true pose is checked to keep `clearance` from every occupied or unknown cell.
 
+Kidnapping (`kidnap_steps`): at each listed step the robot is carried to a random place and
+drives on from there: the run is split into segments, each driven as above from its own random
+start (a reachable node of the planning graph, heading along its new route). The wheels do not
+turn while the robot is carried, so the odometry sees no motion across a kidnap: it integrates
+wheel motion only, and from the first kidnap on it no longer matches the truth.
+
 Odometry: the true motion of each step, split as (rot1, trans, rot2), is reported with
 Gaussian noise of standard deviation sqrt(alpha1·rot² + alpha2·trans²) for the rotations and
 sqrt(alpha3·trans² + alpha4·(rot1² + rot2²)) for the translation, plus systematic scale errors
@@ -77,13 +83,15 @@ class Trajectory:
     """A driven run: times (T,), truth (T, 3) and odometry (T, 3) poses (x, y, θ ∈ (-π, π]).
 
     `odometry` is the wheel-odometry pose in the odometry frame, which starts at the true start
-    pose. `waypoints` (K, 2) are the route's waypoints in visiting order.
+    pose. `waypoints` (K, 2) are the route's waypoints in visiting order. `kidnap_steps` are the
+    steps at which the robot was carried elsewhere (truth[k] is the first pose after it).
     """
 
     times: np.ndarray
     truth: np.ndarray
     odometry: np.ndarray
     waypoints: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    kidnap_steps: tuple[int, ...] = ()
 
 
 def pose_clearance(grid: OccupancyGrid, clear: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -345,34 +353,53 @@ def drive_trajectory(
     max_accel: float = 0.5,
     max_turn_accel: float = 2.0,
     lookahead: float = 0.35,
+    kidnap_steps: tuple[int, ...] = (),
 ) -> Trajectory:
-    """Drive a robot through `grid` for `num_steps` steps at `rate_hz` (see the module doc)."""
+    """Drive a robot through `grid` for `num_steps` steps at `rate_hz`, carried to a random
+    place at each of `kidnap_steps` (see the module doc)."""
     if num_steps < 1:
         raise ValueError(f"num_steps must be >= 1, got {num_steps}")
     if not (rate_hz > 0 and max_speed > 0 and max_turn_rate > 0 and clearance >= 0):
         raise ValueError("rate_hz, max_speed and max_turn_rate must be > 0, clearance >= 0")
+    kidnaps = tuple(int(k) for k in kidnap_steps)
+    bounds = (0, *kidnaps, num_steps)
+    if any(b - a < 2 for a, b in itertools.pairwise(bounds)):
+        raise ValueError(
+            f"kidnap_steps must increase within 2..{num_steps - 2}, at least 2 steps apart, "
+            f"got {list(kidnaps)}"
+        )
     noise = odometry_noise or OdometryNoise()
     plan_rng, odom_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
     dt = 1.0 / rate_hz
     clear = centre_clearance(grid) * grid.resolution  # metres
     graph = _planning_graph(grid, clear, clearance)
-    reach = num_steps * dt * max_speed  # no run drives farther than this
-    polyline, waypoints = _route(graph, plan_rng, reach, 1.1 * reach + 4.0 * lookahead + 1.0)
-    route = _smooth(_resample(polyline, ROUTE_SPACING), grid, clear, clearance + TRACK_MARGIN)
-    truth, steps = _pure_pursuit(
-        route, num_steps, dt, max_speed, max_turn_rate, max_accel, max_turn_accel, lookahead
-    )
+    truths, increments, waypoints = [], [], []
+    for start, stop in itertools.pairwise(bounds):
+        steps_here = stop - start
+        reach = steps_here * dt * max_speed  # no segment drives farther than this
+        polyline, points = _route(graph, plan_rng, reach, 1.1 * reach + 4.0 * lookahead + 1.0)
+        route = _smooth(_resample(polyline, ROUTE_SPACING), grid, clear, clearance + TRACK_MARGIN)
+        truth, steps = _pure_pursuit(
+            route, steps_here, dt, max_speed, max_turn_rate, max_accel, max_turn_accel, lookahead
+        )
+        if truths:
+            increments.append(np.zeros((1, 3)))  # carried: the wheels do not turn
+        truths.append(truth)
+        increments.append(steps)
+        waypoints.append(points)
+    truth = np.concatenate(truths)
     worst = float(pose_clearance(grid, clear, truth[:, :2]).min())
     if worst < clearance:
         raise RuntimeError(
             f"the driven path came within {worst:.3f} m of an obstacle (clearance {clearance} m)"
         )
-    odometry = integrate_odometry(truth[0], steps, noise, odom_rng)
+    odometry = integrate_odometry(truth[0], np.concatenate(increments), noise, odom_rng)
     return Trajectory(
         times=np.arange(num_steps) * dt,
         truth=truth,
         odometry=odometry,
-        waypoints=waypoints,
+        waypoints=np.concatenate(waypoints),
+        kidnap_steps=kidnaps,
     )
 
 
@@ -446,6 +473,8 @@ def save_trajectory(
         odometry_frame="starts at the true start pose",
         waypoints=[[round(float(a), 6) for a in w] for w in traj.waypoints],
     )
+    if traj.kidnap_steps:
+        full_meta["kidnap_steps"] = list(traj.kidnap_steps)
     payload = {
         "truth.npy": _npy_bytes(np.asarray(traj.truth, dtype=np.float64)),
         "odometry.npy": _npy_bytes(np.asarray(traj.odometry, dtype=np.float64)),
@@ -482,15 +511,18 @@ def load_trajectory(directory: str | Path) -> tuple[Trajectory, np.ndarray]:
             f"{d / 'ranges.npy'}: expected shape ({steps[0]}, B), got {arrays['ranges'].shape}"
         )
     waypoints = np.zeros((0, 2))
+    kidnaps: tuple[int, ...] = ()
     meta_path = d / "meta.json"
     if meta_path.is_file():
         meta = json.loads(meta_path.read_text())
         if meta.get("waypoints"):
             waypoints = np.asarray(meta["waypoints"], dtype=np.float64).reshape(-1, 2)
+        kidnaps = tuple(int(k) for k in meta.get("kidnap_steps", ()))
     traj = Trajectory(
         times=arrays["times"],
         truth=arrays["truth"],
         odometry=arrays["odometry"],
         waypoints=waypoints,
+        kidnap_steps=kidnaps,
     )
     return traj, arrays["ranges"]

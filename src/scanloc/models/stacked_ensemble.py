@@ -37,7 +37,7 @@ from torch.func import functional_call, stack_module_state, vmap
 
 from scanloc.data.datamodule import EpochBatches, ScanDataModule
 from scanloc.data.scan_dataset import load_scan_dataset
-from scanloc.io import write_json
+from scanloc.hardware import training_device
 from scanloc.models.lr_schedule import keras_decay
 from scanloc.models.pose_regressor import epoch_row, mae_loss, make_adam, pose_error_sums
 from scanloc.models.training import (
@@ -52,6 +52,7 @@ from scanloc.models.training import (
     training_metrics,
     uses_cuda,
     write_history,
+    write_run_metrics,
 )
 
 Mode = Literal["loop", "vmap"]
@@ -282,10 +283,11 @@ def fit_stacked(
         metrics = training_metrics(histories[k], seconds, counts, count_parameters(models[k]))
         metrics["precision"] = "bf16-mixed" if bf16 else "32-true"
         metrics["stacked_members"] = len(seeds)
+        metrics["device"] = training_device(target.type == "cuda")
         out_dir.mkdir(parents=True, exist_ok=True)
         save_model(out_dir / "model.pt", model_cfg, best[k][1])
         save_model(out_dir / "last.pt", model_cfg, members.member_state(k))
         write_history(out_dir / "history.csv", histories[k])
-        write_json(out_dir / "metrics.json", metrics)
+        write_run_metrics(out_dir, metrics)
         results.append(metrics)
     return results

@@ -5,8 +5,11 @@
               {"model_cfg": ..., "state_dict": ...} (no paths, no times: byte-reproducible);
 - last.pt     the final weights, same format;
 - history.csv one row per epoch (HISTORY_COLUMNS; deterministic);
-- metrics.json final and best validation MAE, epochs, epoch_s (median wall seconds per epoch,
-              the one non-deterministic figure), sample counts, trainable parameters;
+- metrics.json final and best validation MAE, epochs, sample counts, trainable parameters and
+              precision: only what the run determines, so the folder is byte-reproducible;
+              the returned metrics add the machine-dependent MACHINE_KEYS (epoch_s, the median
+              wall seconds per epoch, and the device it ran on), which the train stage writes
+              to reports/metrics/ (a DVC metric that is not cached);
 - snapshots/epoch_<e>.pt for each e in snapshot_epochs.
 Lightning checkpoints (last.ckpt, best.ckpt) go to checkpoint_dir/<key>/, where <key> hashes
 everything that determines the result (configuration, dataset bytes, init weights, training
@@ -46,6 +49,7 @@ import scanloc.data.datamodule as datamodule_py
 import scanloc.data.rasterize as rasterize_py
 from scanloc.data.datamodule import ScanDataModule
 from scanloc.data.scan_dataset import ScanDataset, load_scan_dataset
+from scanloc.hardware import training_device
 from scanloc.io import atomic_path, write_json
 from scanloc.models.pose_regressor import HISTORY_COLUMNS, PoseRegressor
 
@@ -56,6 +60,8 @@ TRAINER_DEFAULTS: dict[str, Any] = {
     "precision": "32-true",
     "deterministic": True,
 }
+# Figures that measure the machine rather than the run: kept out of the model folder.
+MACHINE_KEYS = ("epoch_s", "device")
 # Trainer arguments that fit sets itself.
 _FIXED_TRAINER_KEYS = {
     "max_epochs",
@@ -191,6 +197,13 @@ def write_history(path: PathLike, history: Sequence[Mapping[str, float]]) -> Non
         tmp.write_text("\n".join(lines) + "\n")
 
 
+def write_run_metrics(out_dir: PathLike, metrics: Mapping[str, Any]) -> None:
+    """out_dir/metrics.json: the run's metrics without MACHINE_KEYS (byte-reproducible)."""
+    write_json(
+        Path(out_dir) / "metrics.json", {k: v for k, v in metrics.items() if k not in MACHINE_KEYS}
+    )
+
+
 def best_index(history: Sequence[Mapping[str, float]]) -> int:
     """Row of the lowest val_mae, the first of ties (as ModelCheckpoint keeps it)."""
     return min(range(len(history)), key=lambda i: history[i]["val_mae"])
@@ -314,8 +327,9 @@ def resolve_precision(precision: Any, accelerator: str) -> str:
 
     Natively means bf16 dot-product instructions (x86 avx512_bf16 or AMX) on the CPU, or a GPU
     with bf16 tensor cores. There bf16 autocast trains the 1D CNN 1.8-2x faster than float32
-    on CPU, with validation errors not distinguishable from float32's seed-to-seed spread
-    (benchmarks/precision_noise.py); elsewhere bf16 would be emulated, and slower.
+    on CPU; 4 seeds per precision showed no significant difference of the mean validation MAE
+    (a Welch test, benchmarks/precision_noise.py), which is not a proof of equivalence.
+    Elsewhere bf16 would be emulated, and slower.
     """
     precision = str(precision)
     if precision != "auto":
@@ -480,6 +494,7 @@ def fit(
             history, final["scanloc"]["epoch_seconds"], counts, count_parameters(model)
         )
         metrics["precision"] = kwargs["precision"]
+        metrics["device"] = training_device(uses_cuda(str(kwargs["accelerator"])))
         out_dir.mkdir(parents=True, exist_ok=True)
         save_model(out_dir / "model.pt", model_cfg, _net_state(best["state_dict"]))
         save_model(out_dir / "last.pt", model_cfg, _net_state(final["state_dict"]))
@@ -488,7 +503,7 @@ def fit(
             with atomic_path(out_dir / "snapshots" / name) as tmp:
                 tmp.write_bytes((run_dir / "snapshots" / name).read_bytes())
         write_history(out_dir / "history.csv", history)
-        write_json(out_dir / "metrics.json", metrics)
+        write_run_metrics(out_dir, metrics)
     return metrics
 
 

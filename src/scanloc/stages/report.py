@@ -10,7 +10,7 @@ import yaml
 from omegaconf import DictConfig
 
 from scanloc.report.build import build_report
-from scanloc.stages._app import stage_main, timed_stage
+from scanloc.stages._app import stage_main, timed_stage, to_dict
 
 
 def git_commit() -> str | None:
@@ -47,7 +47,7 @@ def main(cfg: DictConfig) -> None:
             "params": profile_params(profile),
             "git_commit": git_commit(),
         }
-        build_report(Path("."), Path(cfg.out_dir), context)
+        build_report(Path("."), Path(cfg.out_dir), context, to_dict(cfg.claims))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,117 @@
+"""The kinds of localizer the localize stage can run, chosen by the `kind` of a localizer config
+(conf/localizer/<name>.yaml), each a function (config, inputs) -> Localization."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scanloc.localize.amcl import AmclParams, run_amcl
+from scanloc.localize.cnn_localizer import localize_cnn
+from scanloc.localize.estimates import Localization, table_covariances, table_poses
+from scanloc.localize.fusion import FusionParams, fuse_odometry
+from scanloc.localize.trajectory import Trajectory
+from scanloc.sensor.laser import LaserSpec
+from scanloc.world.map_server import load_map
+from scanloc.world.occupancy_grid import OccupancyGrid
+
+# Keys of a localizer config that describe it rather than parametrise its filter.
+META_KEYS = ("name", "kind", "mode", "seed")
+
+
+@dataclass(frozen=True)
+class LocalizeInputs:
+    """What a localizer sees: the run (times, odometry; truth only to start tracking), its
+    scans, the map and the laser."""
+
+    trajectory: Trajectory
+    ranges: np.ndarray
+    map_yaml: Path
+    laser: LaserSpec
+
+    @cached_property
+    def grid(self) -> OccupancyGrid:
+        return load_map(self.map_yaml)
+
+
+def ensemble_model_paths(cfg: Mapping[str, Any]) -> list[Path]:
+    """The listed models, then member_<k>/model.pt of `member_dir` in member order."""
+    paths = [Path(p) for p in cfg["models"]]
+    if cfg.get("member_dir"):
+        member_dir = Path(cfg["member_dir"])
+        members = sorted(member_dir.glob("member_*/model.pt"), key=lambda p: int(p.parent.name[7:]))
+        if not members:
+            raise FileNotFoundError(
+                f"{member_dir}: no member_<k>/model.pt (localizer {cfg['name']})"
+            )
+        paths += members
+    return paths
+
+
+def amcl_params(cfg: Mapping[str, Any]) -> AmclParams:
+    """AmclParams from a localizer config of kind amcl (or one built on it)."""
+    return AmclParams.from_config({k: v for k, v in cfg.items() if k not in META_KEYS})
+
+
+def run_amcl_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+    """ROS amcl, tracking from the true first pose or global (`mode`)."""
+    start = time.perf_counter()
+    grid = inputs.grid
+    loaded = time.perf_counter() - start
+    run = run_amcl(
+        grid,
+        inputs.laser,
+        inputs.trajectory,
+        inputs.ranges,
+        amcl_params(cfg),
+        mode=str(cfg.get("mode", "tracking")),
+        seed=int(cfg.get("seed", 0)),
+    )
+    return run._replace(setup_s=run.setup_s + loaded)
+
+
+def run_cnn_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+    """The paper's CNN localizers: one network, or the mean of an ensemble, per scan."""
+    traj = inputs.trajectory
+    return localize_cnn(ensemble_model_paths(cfg), inputs.ranges, traj.times)
+
+
+def run_fusion_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+    """The CNN ensemble's poses fused with odometry by an EKF (fusion.py)."""
+    params = FusionParams.from_config(dict(cfg["fusion"]))
+    cnn = run_cnn_kind(cfg, inputs)
+    traj = inputs.trajectory
+    start = time.perf_counter()
+    fused = fuse_odometry(
+        traj.odometry, traj.times, table_poses(cnn.table), table_covariances(cnn.table), params
+    )
+    per_step = (time.perf_counter() - start) / len(fused.table)
+    counts = {
+        "n_rejected": int(fused.rejected.sum()),
+        "n_reinitialised": int(fused.reinitialised.sum()),
+    }
+    return Localization(fused.table, cnn.setup_s, cnn.scan_seconds + per_step, counts)
+
+
+LOCALIZER_KINDS: dict[str, Callable[[Mapping[str, Any], LocalizeInputs], Localization]] = {
+    "amcl": run_amcl_kind,
+    "cnn": run_cnn_kind,
+    "fusion": run_fusion_kind,
+}
+
+
+def run_localizer(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+    """Run the localizer a config describes (its `kind` picks the function)."""
+    kind = cfg.get("kind")
+    if kind not in LOCALIZER_KINDS:
+        raise ValueError(
+            f"conf/localizer/{cfg.get('name')}.yaml: field 'kind': expected one of "
+            f"{sorted(LOCALIZER_KINDS)}, got {kind!r}"
+        )
+    return LOCALIZER_KINDS[kind](cfg, inputs)

@@ -1,0 +1,310 @@
+"""Train ScanLocNet (scanlocnet.py) on fresh simulated scans every epoch, with Lightning.
+
+Objective per scan: cross-entropy of the true cell, cross-entropy of the true heading bin given
+the true cell, and the Gaussian negative log-likelihood of the in-cell and in-bin offsets under
+the predicted standard deviations (so they are calibrated, not only small). AdamW with a
+one-cycle schedule over all steps. Validation every epoch on a fixed set of scans (a `scans`
+stage dataset's validation split): the top-1 hypothesis' errors and the top-K recall (the share
+of scans whose truth is within 0.5 m and 10° of one of the K best hypotheses).
+
+`fit_scanlocnet` writes out_dir/model.pt (the network's config, the map's grid included, and
+its weights), history.csv (one row per epoch) and metrics.json (deterministic figures only);
+it returns those metrics plus the machine-dependent epoch_s and device.
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from scanloc.data.scan_dataset import load_scan_dataset
+from scanloc.data.scan_stream import ScanStream, StreamSpec
+from scanloc.evaluate.metrics import recall_within
+from scanloc.hardware import training_device
+from scanloc.io import atomic_path, write_json
+from scanloc.models.pose_grid import PoseGrid
+from scanloc.models.scanlocnet import ScanLocNet, top_k
+from scanloc.models.training import (
+    build_model,
+    count_parameters,
+    keep_freed_memory,
+    save_model,
+    trainer_arguments,
+    uses_cuda,
+)
+
+RECALL_K = (1, 5, 20)
+HISTORY_COLUMNS = (
+    "epoch",
+    "train_loss",
+    "val_loss",
+    "val_pos_err_median_m",
+    "val_heading_err_median_deg",
+    "val_frac_gross_over_1m",
+    "val_top1_recall",
+    "val_top5_recall",
+    "val_top20_recall",
+    "lr",
+)
+
+
+def encode_targets(grid: PoseGrid, poses: np.ndarray, where: str) -> dict[str, Tensor]:
+    """Training targets of poses (N, 3); every pose must lie in a cell of the grid."""
+    enc = grid.encode(poses)
+    outside = int((enc["cell"] < 0).sum())
+    if outside:
+        raise ValueError(f"{where}: {outside} poses lie outside the pose grid's cells")
+    return {
+        "cell": torch.from_numpy(enc["cell"]),
+        "offset": torch.from_numpy(enc["offset"]).float(),
+        "bin": torch.from_numpy(enc["bin"]),
+        "bin_offset": torch.from_numpy(enc["bin_offset"]).float(),
+    }
+
+
+def scanlocnet_loss(model: ScanLocNet, ranges: Tensor, target: Mapping[str, Tensor]) -> Tensor:
+    """Cell CE + heading-bin CE (at the true cell) + Gaussian NLL of the offsets."""
+    feats = model.features(ranges)
+    loss_cell = F.cross_entropy(model.cell_logits(feats).float(), target["cell"])
+    cond = model.conditional_outputs(feats, target["cell"])
+    loss_bin = F.cross_entropy(cond["bin_logits"], target["bin"])
+    pred_bin_offset = cond["bin_offsets"].gather(1, target["bin"][:, None]).squeeze(1)
+    error = torch.cat(
+        [cond["offset"] - target["offset"], (pred_bin_offset - target["bin_offset"])[:, None]],
+        dim=1,
+    )
+    log_std = cond["log_std"]
+    nll = (0.5 * (error * torch.exp(-log_std)) ** 2 + log_std).sum(dim=1).mean()
+    return loss_cell + loss_bin + nll
+
+
+class _Epochs:
+    """One epoch of training batches from the stream; Lightning calls set_epoch (`.sampler`)."""
+
+    batch_sampler = None
+
+    def __init__(self, stream: ScanStream, grid: PoseGrid, batch_size: int, seed: int) -> None:
+        self.stream, self.grid, self.batch_size, self.seed = stream, grid, batch_size, seed
+        self.epoch = 0
+        n = stream.spec.scans_per_epoch
+        self.n_batches = n // batch_size  # full batches only: BatchNorm needs > 1 sample
+
+    @property
+    def sampler(self) -> _Epochs:
+        return self
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return self.n_batches
+
+    def __iter__(self) -> Iterator[tuple[Tensor, dict[str, Tensor]]]:
+        ranges, poses = self.stream.epoch(self.epoch)
+        x = torch.from_numpy(ranges)
+        y = encode_targets(self.grid, poses, f"training epoch {self.epoch}")
+        order = torch.randperm(
+            len(x), generator=torch.Generator().manual_seed(self.seed * 100_003 + self.epoch)
+        )
+        for b in range(self.n_batches):
+            idx = order[b * self.batch_size : (b + 1) * self.batch_size]
+            yield x[idx], {k: v[idx] for k, v in y.items()}
+
+
+class ScanLocModule(L.LightningModule):
+    """ScanLocNet with its loss, AdamW + one-cycle, and the validation figures per epoch."""
+
+    def __init__(
+        self,
+        model: ScanLocNet,
+        lr: float,
+        weight_decay: float,
+        total_steps: int,
+        pct_start: float,
+        val_ranges: Tensor,
+        val_poses: np.ndarray,
+    ) -> None:
+        super().__init__()
+        self.model = model
+        self.lr, self.weight_decay = lr, weight_decay
+        self.total_steps, self.pct_start = total_steps, pct_start
+        self.val_ranges, self.val_poses = val_ranges, val_poses
+        self.val_targets = encode_targets(model.grid, val_poses, "validation scans")
+        self.history: list[dict[str, float]] = []
+        self.epoch_seconds: list[float] = []
+        self._train_sum = torch.zeros((), dtype=torch.float64)
+        self._train_count = 0
+        self._start = 0.0
+
+    def training_step(self, batch, batch_idx: int) -> Tensor:
+        ranges, target = batch
+        loss = scanlocnet_loss(self.model, ranges, target)
+        self._train_sum += loss.detach().double()
+        self._train_count += 1
+        return loss
+
+    def on_train_epoch_start(self) -> None:
+        self._start = time.perf_counter()
+        self._train_sum.zero_()
+        self._train_count = 0
+
+    def on_train_epoch_end(self) -> None:
+        train_loss = float(self._train_sum) / max(self._train_count, 1)
+        self.epoch_seconds.append(time.perf_counter() - self._start)
+        row = {"epoch": self.current_epoch + 1, "train_loss": train_loss}
+        row |= self.evaluate()
+        row["lr"] = float(self.lr_schedulers().get_last_lr()[0])
+        self.history.append(row)
+        self.model.train()
+        print(
+            f"epoch {row['epoch']}: train loss {row['train_loss']:.3f}, val loss "
+            f"{row['val_loss']:.3f}, val median {row['val_pos_err_median_m']:.3f} m / "
+            f"{row['val_heading_err_median_deg']:.1f}°, top-5 recall {row['val_top5_recall']:.3f} "
+            f"({self.epoch_seconds[-1]:.1f} s)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    @torch.no_grad()
+    def evaluate(self) -> dict[str, float]:
+        model = self.model.eval()
+        losses = [
+            float(
+                scanlocnet_loss(
+                    model,
+                    self.val_ranges[s : s + 1024],
+                    {k: v[s : s + 1024] for k, v in self.val_targets.items()},
+                )
+            )
+            * len(self.val_ranges[s : s + 1024])
+            for s in range(0, len(self.val_ranges), 1024)
+        ]
+        hyp = top_k(model, self.val_ranges, max(RECALL_K))
+        return {"val_loss": sum(losses) / len(self.val_ranges)} | hypothesis_metrics(
+            hyp.poses, self.val_poses, prefix="val_"
+        )
+
+    def configure_optimizers(self):
+        decay, no_decay = [], []
+        for name, param in self.model.named_parameters():
+            (no_decay if param.ndim < 2 or "embedding" in name else decay).append(param)
+        optimizer = torch.optim.AdamW(
+            [
+                {"params": decay, "weight_decay": self.weight_decay},
+                {"params": no_decay, "weight_decay": 0.0},
+            ],
+            lr=self.lr,
+        )
+        schedule = torch.optim.lr_scheduler.OneCycleLR(
+            optimizer, max_lr=self.lr, total_steps=self.total_steps, pct_start=self.pct_start
+        )
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
+
+
+def hypothesis_metrics(hyp_poses: np.ndarray, truth: np.ndarray, prefix: str = "") -> dict:
+    """Top-1 errors and top-K recall of hypotheses (N, K, 3) against true poses (N, 3)."""
+    top1 = hyp_poses[:, 0]
+    pos = np.hypot(top1[:, 0] - truth[:, 0], top1[:, 1] - truth[:, 1])
+    heading = np.degrees(np.abs(np.angle(np.exp(1j * (top1[:, 2] - truth[:, 2])))))
+    out = {
+        f"{prefix}pos_err_median_m": float(np.median(pos)),
+        f"{prefix}heading_err_median_deg": float(np.median(heading)),
+        f"{prefix}frac_gross_over_1m": float(np.mean(pos > 1.0)),
+    }
+    for k in RECALL_K:
+        out[f"{prefix}top{k}_recall"] = float(recall_within(hyp_poses[:, :k], truth).mean())
+    return out
+
+
+def write_history(path: Path, history: Sequence[Mapping[str, float]]) -> None:
+    lines = [",".join(HISTORY_COLUMNS)]
+    lines += [",".join(repr(row[c]) for c in HISTORY_COLUMNS) for row in history]
+    with atomic_path(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+
+
+def fit_scanlocnet(
+    *,
+    model_cfg: Mapping[str, Any],
+    grid: PoseGrid,
+    stream: StreamSpec,
+    val_dataset: Path,
+    out_dir: Path,
+    epochs: int,
+    batch_size: int,
+    lr: float,
+    weight_decay: float,
+    pct_start: float,
+    trainer_cfg: Mapping[str, Any] | None,
+    max_val: int | None = None,
+) -> dict[str, Any]:
+    """Train ScanLocNet for `grid` on the stream and validate on `val_dataset`'s validation
+    split (see the module docstring). Returns the metrics."""
+    if epochs < 1 or batch_size < 2 or stream.scans_per_epoch < batch_size:
+        raise ValueError(
+            f"need epochs >= 1, batch_size >= 2 and scans_per_epoch >= batch_size, got {epochs}, "
+            f"{batch_size}, {stream.scans_per_epoch}"
+        )
+    data = load_scan_dataset(val_dataset)
+    rows = np.flatnonzero(data.is_val)[: max_val or None]
+    val_ranges = torch.from_numpy(np.ascontiguousarray(data.ranges[rows], dtype=np.float32))
+    val_poses = np.asarray(data.poses[rows], dtype=np.float64)
+    if val_ranges.shape[1] != stream.num_beams:
+        raise ValueError(
+            f"{val_dataset}/ranges.npy: {val_ranges.shape[1]} beams, the stream's sensor has "
+            f"{stream.num_beams}"
+        )
+    cfg = dict(model_cfg) | {"grid": grid.to_dict(), "num_beams": stream.num_beams}
+    cfg.setdefault("range_max", float(stream.sensor["range_max"]))
+    kwargs = trainer_arguments(trainer_cfg)
+    keep_freed_memory()
+    L.seed_everything(stream.seed, workers=True, verbose=False)
+    model = build_model(cfg)
+    steps_per_epoch = stream.scans_per_epoch // batch_size
+    module = ScanLocModule(
+        model, lr, weight_decay, epochs * steps_per_epoch, pct_start, val_ranges, val_poses
+    )
+    interactive = sys.stderr.isatty()
+    trainer = L.Trainer(
+        max_epochs=epochs,
+        logger=False,
+        enable_checkpointing=False,
+        num_sanity_val_steps=0,
+        limit_val_batches=0,
+        enable_progress_bar=interactive,
+        enable_model_summary=False,
+        **kwargs,
+    )
+    with ScanStream(stream) as scans:
+        trainer.fit(module, train_dataloaders=_Epochs(scans, grid, batch_size, stream.seed))
+    last = module.history[-1]
+    metrics: dict[str, Any] = {k: v for k, v in last.items() if k not in ("epoch", "lr")}
+    metrics |= {
+        "epochs": len(module.history),
+        "scans_per_epoch": stream.scans_per_epoch,
+        "samples_seen": len(module.history) * steps_per_epoch * batch_size,
+        "val_scans": len(val_poses),
+        "cells": grid.num_cells,
+        "heading_bins": grid.heading_bins,
+        "params": count_parameters(model),
+        "precision": kwargs["precision"],
+    }
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    save_model(out_dir / "model.pt", cfg, model.state_dict())
+    write_history(out_dir / "history.csv", module.history)
+    write_json(out_dir / "metrics.json", metrics)
+    metrics["epoch_s"] = round(statistics.median(module.epoch_seconds), 4)
+    metrics["train_s"] = round(sum(module.epoch_seconds), 2)
+    metrics["device"] = training_device(uses_cuda(str(kwargs["accelerator"])))
+    return metrics
