@@ -248,17 +248,22 @@ def agreement(grid, spec, odom, ranges, model: str) -> tuple[float, float]:
     return float(rel.max()), float(np.median(rel))
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="a fast smoke run")
-    args = parser.parse_args()
-    repeats, per_repeat = (2, 2) if args.quick else (7, 15)
+def benchmark_drive() -> tuple[OccupancyGrid, str, LaserSpec, np.ndarray, np.ndarray]:
+    """The map, its name, the sensor, noise-free scans and odometry of a 200-step drive."""
     grid, map_name = load_benchmark_map()
     spec = LaserSpec()
     traj = drive_trajectory(grid, 200, seed=0)
     exact = cast_exact(CastMap.from_grid(grid), traj.truth, spec.beam_angles(), spec.range_max)
     ranges = np.where(np.isfinite(exact), exact, spec.no_return_value).astype(np.float32)
-    odom = traj.odometry
+    return grid, map_name, spec, ranges, traj.odometry
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="a fast smoke run")
+    args = parser.parse_args()
+    repeats, per_repeat = (2, 2) if args.quick else (7, 15)
+    grid, map_name, spec, ranges, odom = benchmark_drive()
     threads = numba.get_num_threads()
     print(f"map: {map_name}; numba threads: {threads}; reference: numpy on 1 thread")
     figures: dict[str, object] = {"map": map_name, "threads": threads, "quick": args.quick}

@@ -51,11 +51,12 @@ CONFIGS: dict[str, dict] = {
 }
 
 
-def pipeline_run(profile: str):
-    """The trajectory stage's map-1 drive at `profile`: (grid, spec, trajectory, ranges)."""
+def pipeline_run(profile: str, map_name: str = "sparse_obstacles"):
+    """The trajectory stage's drive at `profile` on one of conf/map's maps: (grid, spec,
+    trajectory, ranges), the same as the pipeline's."""
     with initialize_config_dir(config_dir=str(CONF), version_base=None):
-        cfg = compose("trajectory", overrides=[f"profile={profile}"])
-        map_cfg = compose("maps", overrides=[f"map={cfg.map}"]).map
+        cfg = compose("trajectory", overrides=[f"profile={profile}", f"map_name={map_name}"])
+        map_cfg = compose("maps", overrides=[f"map={map_name}"]).map
     cfg = OmegaConf.to_container(cfg, resolve=True)
     grid = build_map(OmegaConf.to_container(map_cfg, resolve=True))
     run = cfg["trajectory"]

@@ -5,6 +5,7 @@ every conf file a stage reads is declared in dvc.yaml (so an edit reruns the sta
 from __future__ import annotations
 
 import functools
+import itertools
 import os
 import re
 import shlex
@@ -51,7 +52,8 @@ GROUP_HOST = {
     "experiment": "train",
     "model": "train",
     "trainer": "train",
-    "localizer": "localize",
+    "localizer": ("localize", "localizer@localizers.amcl"),
+    "run": "trajectory",
     "profile": "report",
 }
 # Not checked option by option: the profile picks the scale files (test_scale_files_...),
@@ -137,15 +139,38 @@ def substitute(node: Any, context: dict[str, Any]) -> Any:
 
 
 def dvc_stages(profile: str, trainer: str) -> dict[str, dict[str, Any]]:
-    """Every stage of dvc.yaml with foreach expanded, for params.yaml's profile and trainer."""
+    """Every stage of dvc.yaml with foreach and matrix expanded as DVC does it, for the maps of
+    params.yaml and the given profile and trainer (a foreach or matrix dimension over a dict
+    iterates its keys, and a foreach item is the dict's value)."""
     spec = yaml.safe_load((REPO_ROOT / "dvc.yaml").read_text())
-    variables = {"profile": profile, "trainer": trainer}
+    params = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
+    variables = {
+        "profile": profile,
+        "trainer": trainer,
+        "maps": params["maps"],
+        "real_logs": params["real_logs"],
+    }
+
+    def values(entries: Any) -> Any:
+        if isinstance(entries, str):
+            found = re.fullmatch(r"\$\{(\w+)\}", entries)
+            assert found, f"dvc.yaml: a foreach or matrix over {entries!r}"
+            return variables[found.group(1)]
+        return entries
+
     stages: dict[str, dict[str, Any]] = {}
     for name, stage in spec["stages"].items():
+        if "matrix" in stage:
+            body = {k: v for k, v in stage.items() if k != "matrix"}
+            dims = {dim: list(values(v)) for dim, v in stage["matrix"].items()}
+            for combo in itertools.product(*dims.values()):
+                item = dict(zip(dims, combo, strict=True))
+                stages[f"{name}@{'-'.join(combo)}"] = substitute(body, {**variables, "item": item})
+            continue
         if "foreach" not in stage:
             stages[name] = substitute(stage, variables)
             continue
-        entries = stage["foreach"]
+        entries = values(stage["foreach"])
         if isinstance(entries, dict):
             pairs = list(entries.items())
         else:
@@ -251,14 +276,16 @@ def test_every_group_option_composes_at_every_profile(group: str, option: str):
     """Options no DVC stage uses (amcl_nav2, noise=none, generated maps...) compose too."""
     assert group in GROUP_HOST, f"conf/{group}/: new group, add it to GROUP_HOST"
     host = GROUP_HOST[group]
+    # A group selected into a package (localizer@localizers.<slot>) is overridden there.
+    host, slot = host if isinstance(host, tuple) else (host, group)
     for profile in (None,) if host == "maps" else PROFILES:
-        if (group, option, profile) in dvc_choices():
+        if any((g.split("@")[0], o, p) == (group, option, profile) for g, o, p in dvc_choices()):
             continue  # composed and resolved by test_every_dvc_command_composes_and_resolves
-        overrides = (f"{group}={option}",)
+        overrides = (f"{slot}={option}",)
         if profile is not None and group != "profile":
             overrides += (f"profile={profile}",)
         resolved(host, overrides)
-        assert choices(host, overrides)[group] == option
+        assert choices(host, overrides)[slot] == option
 
 
 # --- 2. the paper profile is exact, the others are scaled down -----------------------------
@@ -301,7 +328,7 @@ def test_paper_datasets_trajectory_and_transfer():
     traj = resolved("trajectory", ("profile=paper",))
     assert traj["trajectory"]["num_steps"] == 1500
     assert traj["trajectory"]["rate_hz"] == pytest.approx(10.0)
-    assert traj["map"] == "sparse_obstacles"
+    assert traj["map_name"] == "sparse_obstacles" and traj["name"] == "sparse_obstacles_drive"
     assert traj["sensor"].get("rate_hz", 10) == pytest.approx(10.0)
     transfer = transfer_cfg("paper")["transfer"]
     assert transfer["dataset"] == "map2_small"
@@ -462,18 +489,37 @@ def inside(path: str, declared: list[str]) -> bool:
     return any(Path(path) == Path(d) or Path(d) in Path(path).parents for d in declared)
 
 
+def localizer_inputs(localizer: dict[str, Any]) -> list[str]:
+    """Paths one localizer config reads beside the trajectory and the map."""
+    if localizer["kind"] in ("cnn", "fusion"):
+        return localizer["models"] + ([localizer["member_dir"]] if localizer["member_dir"] else [])
+    if "model" in localizer:  # the learned localizer, its tracking and the hybrid
+        return [localizer["model"]]
+    return []
+
+
 def config_inputs(cfg: dict[str, Any]) -> list[str]:
-    """Paths a stage reads, by the config keys the stage apps use."""
-    paths = [cfg[k] for k in ("dataset_dir", "trajectory_dir", "truth", "localize_dir") if k in cfg]
-    localizer = cfg.get("localizer")
-    if "map_yaml" in cfg and (localizer is None or localizer["kind"] == "amcl"):
+    """Paths a stage reads, by the config keys the stage apps use. timing_dir is not one: every
+    stage writes its wall time there, and the report lists those times without depending on
+    them (a wall time never repeats, so a dependency would rerun the report every time)."""
+    keys = (
+        "dataset_dir",
+        "trajectory_dir",
+        "truth",
+        "val_dataset",
+        "trajectory_root",
+        "localize_timing_dir",
+    )
+    paths = [cfg[k] for k in keys if k in cfg]
+    paths += cfg.get("localize_roots", [])
+    localizers = cfg.get("localizers") or {}
+    needs_map = any(loc["kind"] not in ("cnn", "fusion") for loc in localizers.values())
+    if "map_yaml" in cfg and (not localizers or needs_map):
         paths.append(cfg["map_yaml"])
     if cfg.get("init") == "pretrained":
         paths.append(cfg["pretrained_model"])
-    if localizer is not None and localizer["kind"] == "cnn":
-        paths += localizer["models"] + (
-            [localizer["member_dir"]] if localizer["member_dir"] else []
-        )
+    for localizer in localizers.values():
+        paths += localizer_inputs(localizer)
     return paths
 
 
@@ -481,7 +527,7 @@ def config_outputs(config_name: str, cfg: dict[str, Any]) -> list[str]:
     """Paths a stage writes; the report stage writes two files into its out_dir."""
     if config_name == "report":
         return [f"{cfg['out_dir']}/report.html", f"{cfg['out_dir']}/report.md"]
-    keys = ("out_dir", "out_path", "metrics_path", "table2_path", "timing_path")
+    keys = ("out_dir", "out_path", "metrics_path", "table2_path", "table2_dir", "timing_path")
     return [cfg[k] for k in keys if k in cfg]
 
 
@@ -491,10 +537,11 @@ def test_dvc_declares_what_each_stage_reads_and_writes(profile: str, trainer: st
     for name, stage in dvc_stages(profile, trainer).items():
         config_name, overrides = stage_command(stage)
         declared = param_files(stage)
-        for group, option in choices(config_name, overrides).items():
-            if group == "profile":
+        for slot, option in choices(config_name, overrides).items():
+            if slot == "profile":
                 assert "profile" in param_keys(stage), f"{name}: `profile` not a param"
                 continue
+            group = slot.split("@")[0]  # localizer@localizers.amcl: group localizer
             for path in group_files(group, option):
                 if (REPO_ROOT / path).is_file():
                     assert path in declared, f"{name} reads {path} but dvc.yaml omits it"
@@ -519,17 +566,33 @@ def test_dvc_stage_list_is_the_contract():
     assert {n.split("@", 1)[0] for n in names} == {
         "maps",
         "scans",
+        "valscans",
         "train",
         "transfer",
+        "train_scanlocnet",
         "trajectory",
         "localize",
+        "localize_cnn",
+        "real",
+        "real_valscans",
+        "real_train",
+        "real_localize",
         "evaluate",
         "report",
     }
+    maps = set(params["maps"])
+    assert {"sparse_obstacles", "simple_rooms"} <= maps  # the paper's two maps by default
     assert expansions("train") == {*ROWS, "ensemble"}
     assert expansions("transfer") == {"scratch", "pretrained"}
-    assert expansions("maps") and expansions("scans") == set(DATASETS)
-    assert expansions("localize") >= {"amcl", "cnn_single", "cnn_ensemble"}
-    for single in ("trajectory", "evaluate", "report"):
+    assert expansions("maps") == maps == expansions("valscans") == expansions("train_scanlocnet")
+    assert expansions("scans") == set(DATASETS)
+    runs = {f"{m}-{r}" for m in maps for r in ("drive", "kidnap")}
+    assert expansions("trajectory") == runs == expansions("localize")
+    assert expansions("localize_cnn") == {"drive", "kidnap"}
+    logs = set(params["real_logs"])
+    assert "intel" in logs  # the real-data evaluation runs by default on the intel log
+    assert expansions("real") == logs == expansions("real_valscans") == expansions("real_train")
+    assert expansions("real_localize") == {f"{log}-{r}" for log in logs for r in ("real", "sim")}
+    for single in ("evaluate", "report"):
         assert single in names
     assert params["profile"] in PROFILES and params["trainer"] in TRAINERS

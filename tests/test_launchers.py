@@ -114,15 +114,17 @@ def test_sweep_runs_each_job_into_its_own_folder(launcher: str, tiny_dataset: Pa
         f"dataset_dir={tiny_dataset}",
         f"hydra.sweep.dir={sweep}",
     )
-    metrics_files = sorted(sweep.rglob("metrics.json"))
-    job_dirs = sorted({p.parent for p in metrics_files if p.parent.name != "model"})
+    metrics_files = sorted(sweep.rglob("train_cnn1d_20k.json"))
+    job_dirs = sorted({p.parents[2] for p in metrics_files if p.parent.name == "metrics"})
     assert len(job_dirs) == 2, f"expected two job folders under {sweep}: {metrics_files}"
     lrs = []
     for job_dir in job_dirs:
-        check_metrics(job_dir / "metrics.json")
-        assert (job_dir / "model" / "model.pt").is_file()
-        assert (job_dir / "model" / "history.csv").is_file()
-        run_config = json.loads((job_dir / "model" / "config.json").read_text())
+        # the pipeline's layout, inside the job's folder
+        check_metrics(job_dir / "reports/metrics/train_cnn1d_20k.json")
+        model_dir = job_dir / "models/cnn1d_20k"
+        assert (model_dir / "model.pt").is_file() and (model_dir / "history.csv").is_file()
+        assert (job_dir / "reports/timing/train_cnn1d_20k.json").is_file()
+        run_config = json.loads((model_dir / "config.json").read_text())
         job_cfg = yaml.safe_load((job_dir / ".hydra" / "config.yaml").read_text())
         assert run_config["lr"] == job_cfg["model"]["lr"]
         lrs.append(run_config["lr"])
@@ -145,9 +147,9 @@ def test_transfer_sweep_writes_into_its_job_folder(tiny_dataset: Path, tmp_path:
         stage="transfer",
     )
     job_dir = sweep / "0"
-    check_metrics(job_dir / "metrics.json")
-    assert (job_dir / "model" / "model.pt").is_file()
-    assert (job_dir / "transfer_scratch.json").is_file()  # the stage's wall time
+    check_metrics(job_dir / "reports/metrics/transfer_scratch.json")
+    assert (job_dir / "models/transfer/scratch/model.pt").is_file()
+    assert (job_dir / "reports/timing/transfer_scratch.json").is_file()  # the stage's wall time
     written = [p for d in ("models", "reports") for p in (tmp_path / d).rglob("*") if p.is_file()]
     assert not written, f"the sweep wrote pipeline outputs: {written}"
 

@@ -8,8 +8,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from scanloc.evaluate.metrics import localization_metrics, mahalanobis_sq
-from scanloc.evaluate.table2 import evaluate_all, evaluate_dir, metrics_json, round_sig
+from scanloc.evaluate.metrics import (
+    convergence_metrics,
+    localization_metrics,
+    mahalanobis_sq,
+    recall_within,
+)
+from scanloc.evaluate.table2 import evaluate_all, evaluate_runs, metrics_json, round_sig
 
 
 def _table(est: np.ndarray, cov: np.ndarray | None = None) -> pd.DataFrame:
@@ -85,12 +90,13 @@ def test_length_mismatch_names_the_file(tmp_path) -> None:
     truth = np.zeros((5, 3))
     with pytest.raises(ValueError, match=r"amcl\.csv.*4 rows.*5 steps"):
         localization_metrics(truth, _table(np.zeros((4, 3))), source="reports/localize/amcl.csv")
-    (tmp_path / "loc").mkdir()
-    _table(np.zeros((3, 3))).to_csv(tmp_path / "loc" / "cnn_single.csv", index=False)
-    np.save(tmp_path / "truth.npy", truth)
+    (tmp_path / "loc" / "run").mkdir(parents=True)
+    _table(np.zeros((3, 3))).to_csv(tmp_path / "loc" / "run" / "cnn_single.csv", index=False)
+    (tmp_path / "traj" / "run").mkdir(parents=True)
+    np.save(tmp_path / "traj" / "run" / "truth.npy", truth)
     with pytest.raises(ValueError, match=r"cnn_single\.csv"):
-        evaluate_dir(
-            tmp_path / "truth.npy", tmp_path / "loc", tmp_path / "m.json", tmp_path / "t.md"
+        evaluate_runs(
+            ["run"], tmp_path / "traj", [tmp_path / "loc"], tmp_path, tmp_path / "m.json", tmp_path
         )
 
 
@@ -119,12 +125,13 @@ def test_metrics_json_is_stable_and_ordered(tmp_path) -> None:
     truth = np.zeros((3, 3))
     est = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.1], [0.0, 0.3, -0.1]])
     tables = {"cnn_single": _table(est), "amcl": _table(est * 0.5), "zz_new": _table(est)}
-    metrics = evaluate_all(truth, tables, {"amcl": 0.0123456789})
+    metrics = evaluate_all(truth, tables, {"amcl": {"time_per_scan_s": 0.0123456789}})
     assert list(metrics) == ["amcl", "cnn_single", "zz_new"]
     text = metrics_json(metrics)
     # the bytes do not depend on the order the tables come in
     reordered = dict(reversed(tables.items()))
-    assert text == metrics_json(evaluate_all(truth, reordered, {"amcl": 0.0123456789}))
+    timing = {"amcl": {"time_per_scan_s": 0.0123456789}}
+    assert text == metrics_json(evaluate_all(truth, reordered, timing))
     doc = json.loads(text)
     assert list(doc["amcl"]) == sorted(metrics["amcl"])
     assert doc["amcl"]["time_per_scan_s"] == 0.0123457
@@ -132,17 +139,80 @@ def test_metrics_json_is_stable_and_ordered(tmp_path) -> None:
     assert round_sig(float("nan")) is None and round_sig(7) == 7
 
 
-def test_evaluate_dir_writes_json_and_table2(tmp_path) -> None:
-    truth = np.zeros((3, 3))
-    loc = tmp_path / "localize"
-    loc.mkdir()
-    _table(np.full((3, 3), 0.1)).to_csv(loc / "amcl.csv", index=False)
-    (loc / "amcl_timing.json").write_text('{"time_per_scan_s": 0.5}')
-    out_json, out_md = tmp_path / "metrics" / "localization.json", tmp_path / "table2.md"
-    np.save(tmp_path / "truth.npy", truth)
-    evaluate_dir(tmp_path / "truth.npy", loc, out_json, out_md)
+def test_evaluate_runs_writes_json_and_table2(tmp_path) -> None:
+    run = "room_drive"
+    (tmp_path / "traj" / run).mkdir(parents=True)
+    np.save(tmp_path / "traj" / run / "truth.npy", np.zeros((3, 3)))
+    for folder, method in (("localize", "amcl"), ("localize_cnn", "cnn_single")):
+        (tmp_path / folder / run).mkdir(parents=True)
+        _table(np.full((3, 3), 0.1)).to_csv(tmp_path / folder / run / f"{method}.csv", index=False)
+    (tmp_path / "timing").mkdir()
+    (tmp_path / "timing" / f"{run}.json").write_text('{"amcl": {"time_per_scan_s": 0.5}}')
+    out_json = tmp_path / "metrics" / "localization.json"
+    evaluate_runs(
+        [run],
+        tmp_path / "traj",
+        [tmp_path / "localize", tmp_path / "localize_cnn"],
+        tmp_path / "timing",
+        out_json,
+        tmp_path / "table2",
+    )
     doc = json.loads(out_json.read_text())
-    assert doc["amcl"]["x_err_mean"] == 0.1 and doc["amcl"]["time_per_scan_s"] == 0.5
-    md = out_md.read_text()
+    assert set(doc[run]) == {"amcl", "cnn_single"}  # both folders, one trajectory
+    assert doc[run]["amcl"]["x_err_mean"] == 0.1 and doc[run]["amcl"]["time_per_scan_s"] == 0.5
+    md = (tmp_path / "table2" / f"{run}.md").read_text()
     assert "| amcl | 0.1000 | 0.0000 |" in md
-    assert md.rstrip().splitlines()[-1].endswith("| 500 |")  # the modern table's time in ms
+    assert "## Global localization and kidnapping" in md
+
+
+def _errors_table(pos: list[float], heading_deg: float = 0.0) -> tuple[np.ndarray, pd.DataFrame]:
+    """A truth at the origin and estimates `pos` metres off along x (NaN: no estimate)."""
+    est = np.zeros((len(pos), 3))
+    est[:, 0] = pos
+    est[:, 2] = np.radians(heading_deg)
+    return np.zeros((len(pos), 3)), _table(est)
+
+
+def test_steps_to_converge_is_the_first_of_20_good_steps() -> None:
+    # lost for 5 steps, good for 10, lost again at step 15, then good from step 17 on
+    pos = [2.0] * 5 + [0.1] * 10 + [0.7, 0.9] + [0.2] * 30
+    truth, table = _errors_table(pos)
+    m = convergence_metrics(truth, table)
+    assert m["steps_to_converge"] == 17
+    assert m["tracking_pos_err_mean_m"] == pytest.approx(0.2)  # only the converged stretch
+    assert m["tracking_share"] == pytest.approx(30 / len(pos))
+    assert m["frac_lost"] == pytest.approx(5 / len(pos))
+    assert "recovery_steps_max" not in m  # no kidnaps
+    assert m["converged"] == 1
+    # a heading 10° off is not converged, whatever the position: censored at the run's length
+    never = convergence_metrics(*_errors_table([0.0] * 40, heading_deg=10.5))
+    assert never["steps_to_converge"] == 40 and never["converged"] == 0
+
+
+def test_recovery_steps_count_from_each_kidnap() -> None:
+    # converged from 0; kidnap at 30: lost 4 steps; kidnap at 60: never recovers before 90
+    pos = [0.1] * 30 + [3.0] * 4 + [0.1] * 26 + [3.0] * 30
+    truth, table = _errors_table(pos)
+    m = convergence_metrics(truth, table, kidnap_steps=(30, 60))
+    assert m["steps_to_converge"] == 0
+    assert m["recovery_steps_1"] == 4
+    # the second never recovers: censored at its stretch's 30 steps, and not counted
+    assert m["recovery_steps_2"] == 30 and m["recovered"] == 1 and m["kidnaps"] == 2
+    assert m["recovery_steps_max"] == 30 and m["recovery_steps_mean"] == 17
+    m2 = convergence_metrics(truth, table, kidnap_steps=(30,))
+    assert m2["recovery_steps_max"] == 4 and m2["recovery_steps_mean"] == 4
+    # a recovery must hold 20 steps before the next kidnap: 26 - 20 steps of slack here
+    assert convergence_metrics(truth, table, kidnap_steps=(30, 50))["recovered"] == 0
+    # a missing estimate counts as lost
+    gap = [0.1] * 10 + [np.nan] + [0.1] * 25
+    assert convergence_metrics(*_errors_table(gap))["steps_to_converge"] == 11
+
+
+def test_recall_counts_the_truth_near_any_hypothesis() -> None:
+    truth = np.zeros((3, 3))
+    hyp = np.zeros((3, 2, 3))
+    hyp[0] = [[2.0, 0.0, 0.0], [0.4, 0.0, 0.0]]  # the second is within 0.5 m
+    hyp[1] = [[0.0, 0.0, 0.2], [0.6, 0.0, 0.0]]  # 11.5° and 0.6 m: neither
+    hyp[2] = [[0.3, 0.3, np.radians(-9.0)], [5.0, 5.0, 0.0]]
+    np.testing.assert_array_equal(recall_within(hyp, truth), [True, False, True])
+    np.testing.assert_array_equal(recall_within(hyp[:, :1], truth), [False, False, True])

@@ -1,4 +1,5 @@
-"""End to end: the whole `dvc repro` on the smoke profile in a temporary copy of the repository."""
+"""End to end: the whole `dvc repro` on the smoke profile in a temporary copy of the repository,
+with two generated maps added to params.yaml's `maps` beside the paper's (a user's own maps)."""
 
 from __future__ import annotations
 
@@ -28,6 +29,22 @@ TABLE2_KEYS = {
     "heading_err_mean_deg",
 }
 TABLE1_ROWS = ("mlp", "cnn1d_20k", "cnn1d_200k", "cnn2d")
+PAPER_MAPS = ("sparse_obstacles", "simple_rooms")
+# A user's maps, added as the README says: a 50 x 25 m rooms map and a 30 x 30 m sparse one.
+EXTRA_MAPS = {
+    "big_rooms": {
+        "config": "generated_rooms",
+        "overrides": "map.width=50.0 map.height=25.0 map.seed=2",
+        "depends": "conf/map/generated_rooms.yaml",
+    },
+    "sparse30": {
+        "config": "generated_sparse",
+        "overrides": "map.width=30.0 map.height=30.0 map.resolution=0.05 map.seed=3",
+        "depends": "conf/map/generated_sparse.yaml",
+    },
+}
+GLOBAL_LOCALIZERS = ("amcl_global", "amcl_recovery", "hybrid")
+REAL_LOG = REPO_ROOT.parent / "shared" / "data" / "carmen" / "intel-corrected.log.gz"
 
 
 def project_files() -> list[str]:
@@ -42,8 +59,9 @@ def project_files() -> list[str]:
     return [f for f in out.splitlines() if (REPO_ROOT / f).is_file()]
 
 
-def copy_project(dest: Path, profile: str) -> Path:
-    """A fresh copy of the project (no data, models or DVC cache) set to `profile`."""
+def copy_project(dest: Path, profile: str, extra_maps: dict | None = None) -> Path:
+    """A fresh copy of the project (no data, models or DVC cache) set to `profile`, with
+    `extra_maps` added to params.yaml's `maps`."""
     for rel in project_files():
         target = dest / rel
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -51,7 +69,16 @@ def copy_project(dest: Path, profile: str) -> Path:
     (dest / "dvc.lock").unlink(missing_ok=True)
     params = yaml.safe_load((dest / "params.yaml").read_text())
     params["profile"] = profile
-    (dest / "params.yaml").write_text(yaml.safe_dump(params))
+    params["maps"] |= extra_maps or {}
+    # The real logs live beside the repository (../shared): point the copy at them, or drop
+    # the real-data stages where they are absent.
+    logs = {}
+    for name, entry in (params.get("real_logs") or {}).items():
+        log = (REPO_ROOT / entry["log"]).resolve()
+        if log.is_file():
+            logs[name] = entry | {"log": str(log)}
+    params["real_logs"] = logs
+    (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     subprocess.run(["git", "init", "-q"], cwd=dest, check=True)
     return dest
 
@@ -73,7 +100,8 @@ def dvc(cwd: Path, *args: str, timeout: int = 1500) -> subprocess.CompletedProce
 
 
 def lock_outs(repo: Path, prefixes: tuple[str, ...]) -> dict[str, str]:
-    """Data output path -> md5 of the stages whose names start with one of `prefixes`.
+    """Data output path -> md5 of the stages whose names start with one of `prefixes` (the
+    paper's maps and datasets only).
 
     Wall-time metrics (reports/timing/) are outputs too but measure the machine, not the data.
     """
@@ -83,13 +111,13 @@ def lock_outs(repo: Path, prefixes: tuple[str, ...]) -> dict[str, str]:
         for name, stage in lock["stages"].items()
         if name.startswith(prefixes)
         for out in stage.get("outs", [])
-        if out["path"].startswith("data/")
+        if out["path"].startswith("data/") and not any(m in out["path"] for m in EXTRA_MAPS)
     }
 
 
 @pytest.fixture(scope="module")
 def smoke_repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    repo = copy_project(tmp_path_factory.mktemp("smoke") / "repo", "smoke")
+    repo = copy_project(tmp_path_factory.mktemp("smoke") / "repo", "smoke", EXTRA_MAPS)
     dvc(repo, "repro")
     return repo
 
@@ -102,11 +130,15 @@ def test_smoke_repro_is_up_to_date(smoke_repo: Path) -> None:
 def test_smoke_repro_writes_the_contract_artifacts(smoke_repo: Path) -> None:
     grid_meta = yaml.safe_load((smoke_repo / "data/maps/sparse_obstacles/map.yaml").read_text())
     assert grid_meta["resolution"] == pytest.approx(0.02)
-    assert (smoke_repo / "data/maps/simple_rooms/map.yaml").is_file()
-    for name in ("map1_small", "map1_large", "map2_small"):
+    for name in (*PAPER_MAPS, *EXTRA_MAPS):
+        assert (smoke_repo / f"data/maps/{name}/map.yaml").is_file()
+        for run in ("drive", "kidnap"):
+            assert (smoke_repo / f"data/trajectories/{name}_{run}/meta.json").is_file()
+    big = yaml.safe_load((smoke_repo / "data/maps/big_rooms/map.yaml").read_text())
+    assert big["resolution"] == pytest.approx(0.05)
+    for name in ("map1_small", "map1_large", "map2_small", "big_rooms_val"):
         meta = json.loads((smoke_repo / f"data/scans/{name}/meta.json").read_text())
         assert meta["count"] > 0
-    assert (smoke_repo / "data/trajectories/map1_drive/meta.json").is_file()
     html = (smoke_repo / "reports/report.html").read_text()
     assert html.count('src="data:image/png;base64,') >= 6
     assert "http://" not in html and "https://" not in html
@@ -114,9 +146,11 @@ def test_smoke_repro_writes_the_contract_artifacts(smoke_repo: Path) -> None:
     for section_id, title in SECTIONS:
         assert f'id="{section_id}"' in html, section_id
         assert title in markdown, title
+    for name in (*PAPER_MAPS, *EXTRA_MAPS):  # one section per map
+        assert f'<h2 id="map-{name}">Map {name}</h2>' in html, name
 
 
-def test_smoke_metrics_hold_table1_and_table2(smoke_repo: Path) -> None:
+def test_smoke_metrics_hold_every_contract_metric(smoke_repo: Path) -> None:
     shown = json.loads(dvc(smoke_repo, "metrics", "show", "--json").stdout)
     metrics: dict[str, dict] = {}
     for workspace in shown.values():
@@ -127,10 +161,44 @@ def test_smoke_metrics_hold_table1_and_table2(smoke_repo: Path) -> None:
         assert {"val_mae", "epoch_s"} <= set(train)
     localization = metrics["reports/metrics/localization.json"]
     for method in ("amcl", "cnn_single", "cnn_ensemble"):
-        assert TABLE2_KEYS <= set(localization[method]), method
+        assert TABLE2_KEYS <= set(localization["sparse_obstacles_drive"][method]), method
+    for name in (*PAPER_MAPS, *EXTRA_MAPS):
+        for run in ("drive", "kidnap"):
+            per_run = localization[f"{name}_{run}"]
+            assert TABLE2_KEYS <= set(per_run["amcl"]), (name, run)
+            for method in GLOBAL_LOCALIZERS:
+                assert "steps_to_converge" in per_run[method], (name, run, method)
+            for method in ("scanlocnet", "scanlocnet_track"):
+                keys = {"pos_err_median_m", "frac_gross_over_1m", "top5_recall"}
+                assert keys <= set(per_run[method]), (name, run, method)
+        kidnap = localization[f"{name}_kidnap"]
+        for method in GLOBAL_LOCALIZERS:
+            assert {"recovery_steps_1", "recovery_steps_max", "recovered"} <= set(kidnap[method])
+        assert {"val_top5_recall", "epoch_s"} <= set(
+            metrics[f"reports/metrics/scanlocnet_{name}.json"]
+        )
+    if not REAL_LOG.is_file():
+        return
+    for run in ("real", "sim"):
+        per_run = localization[f"intel_{run}"]
+        for method in ("amcl", "amcl_global", "hybrid", "scanlocnet"):
+            assert {"pos_err_rmse_m", "steps_to_converge"} <= set(per_run[method]), (run, method)
+        assert per_run["amcl"]["n_steps"] == 100  # the smoke profile's first 100 scans
+        assert "top5_recall" in per_run["scanlocnet"]
+
+
+@pytest.mark.skipif(not REAL_LOG.is_file(), reason="needs ../shared/data/carmen (the real logs)")
+def test_smoke_repro_runs_the_real_log(smoke_repo: Path) -> None:
+    assert (smoke_repo / "data/maps/intel/map.yaml").is_file()
+    meta = json.loads((smoke_repo / "data/trajectories/intel_real/meta.json").read_text())
+    assert meta["num_steps"] == 100 and meta["num_beams"] == 180
+    html = (smoke_repo / "reports/report.html").read_text()
+    assert 'id="real-data"' in html and "intel" in html and "sim-to-real" in html
 
 
 def test_scans_are_byte_reproducible_from_scratch(smoke_repo: Path, tmp_path: Path) -> None:
+    """The paper's maps and datasets, made again from scratch in a copy WITHOUT the extra maps,
+    have the same bytes: adding a map leaves the paper's entries of dvc.lock as they were."""
     again = copy_project(tmp_path / "repo", "smoke")
     dvc(again, "repro", "scans")
     prefixes = ("maps@", "scans@")

@@ -19,15 +19,21 @@ import pandas as pd
 import pytest
 import yaml
 
-from scanloc.evaluate.table2 import evaluate_dir
+from scanloc.evaluate.table2 import evaluate_runs
 from scanloc.localize.estimates import TABLE_COLUMNS
+from scanloc.localize.trajectory import Trajectory, save_trajectory
 from scanloc.report import build as report_build
 from scanloc.report.build import SECTIONS, build_report
 from scanloc.world.map_server import save_map
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-CONTEXT = {"profile": "smoke", "params": {"profile": "smoke", "seed": 0}, "git_commit": "abc123"}
+CONTEXT = {
+    "profile": "smoke",
+    "params": {"profile": "smoke", "seed": 0},
+    "git_commit": "abc123",
+    "maps": ["sparse_obstacles", "simple_rooms"],
+}
 THRESHOLDS = yaml.safe_load((Path(__file__).resolve().parents[1] / "conf/report.yaml").read_text())[
     "claims"
 ]
@@ -117,29 +123,44 @@ def make_artifacts(root: Path) -> Path:
     }.items():
         epoch_s = samples / 4000 * (12 if row == "cnn2d" else 1)
         _run(root, row, start, end, samples, epoch_s)
-    traj = root / "data/trajectories/map1_drive"
-    traj.mkdir(parents=True)
     steps = 60
     phase = np.linspace(0, 2 * np.pi, steps)
     truth = np.column_stack([3 + 1.5 * np.cos(phase), 2.5 + 1.5 * np.sin(phase), phase + np.pi / 2])
     truth[:, 2] = np.angle(np.exp(1j * truth[:, 2]))
-    np.save(traj / "truth.npy", truth)
-    np.save(traj / "times.npy", np.arange(steps) * 0.1)
-    loc = root / "reports/localize"
-    loc.mkdir(parents=True)
-    for method, noise, cov, members in (
-        ("amcl", 0.03, True, 500),
-        ("cnn_single", 0.4, False, 1),
-        ("cnn_ensemble", 0.2, True, 7),
-    ):
-        _estimates(truth, noise, cov, members, rng).to_csv(loc / f"{method}.csv", index=False)
-        _write_json(loc / f"{method}_timing.json", {"time_per_scan_s": 0.001 * members})
-    evaluate_dir(
-        traj / "truth.npy",
-        loc,
+    runs = ("sparse_obstacles_drive", "sparse_obstacles_kidnap")
+    for run in runs:
+        kidnaps = (30,) if run.endswith("kidnap") else ()
+        traj = Trajectory(np.arange(steps) * 0.1, truth, truth.copy(), kidnap_steps=kidnaps)
+        ranges = rng.uniform(0.3, 5.0, size=(steps, 667)).astype(np.float32)
+        meta = {"name": run, "map": "sparse_obstacles", "sensor": SENSOR}
+        save_trajectory(traj, root / "data/trajectories" / run, ranges=ranges, meta=meta)
+        for method, noise, cov, members in (
+            ("amcl", 0.03, True, 500),
+            ("cnn_single", 0.4, False, 1),
+            ("cnn_ensemble", 0.2, True, 7),
+        ):
+            folder = "localize_cnn" if method.startswith("cnn") else "localize"
+            loc = root / "reports" / folder / run
+            loc.mkdir(parents=True, exist_ok=True)
+            _estimates(truth, noise, cov, members, rng).to_csv(loc / f"{method}.csv", index=False)
+        timings = {m: {"time_per_scan_s": 0.001 * k} for m, k in (("amcl", 500), ("cnn_single", 1))}
+        _write_json(root / "reports/localize_timing" / f"{run}.json", timings)
+    evaluate_runs(
+        list(runs),
+        root / "data/trajectories",
+        [root / "reports/localize", root / "reports/localize_cnn"],
+        root / "reports/localize_timing",
         root / "reports/metrics/localization.json",
-        root / "reports/table2.md",
+        root / "reports/table2",
     )
+    learned = {"cells": 222, "train_s": 301.5, "samples_seen": 375000, "precision": "32-true"}
+    learned |= {"val_pos_err_median_m": 0.113, "val_heading_err_median_deg": 0.63}
+    learned |= {"val_frac_gross_over_1m": 0.02, "val_top1_recall": 0.97, "val_top5_recall": 0.996}
+    _write_json(root / "reports/metrics/scanlocnet_sparse_obstacles.json", learned)
+    history = pd.DataFrame({"epoch": [1, 2], "val_pos_err_median_m": [1.0, 0.2]})
+    history["val_top5_recall"] = [0.3, 0.99]
+    (root / "models/scanlocnet/sparse_obstacles").mkdir(parents=True)
+    history.to_csv(root / "models/scanlocnet/sparse_obstacles/history.csv", index=False)
     for stage, wall in (("train_mlp", 12.5), ("localize_amcl", 3.25)):
         _write_json(root / "reports/timing" / f"{stage}.json", {"stage": stage, "wall_s": wall})
     return root
@@ -203,6 +224,14 @@ def test_report_content(built: Path) -> None:
     }
     for meaning in report_build.VERDICT_LEGEND.values():
         assert html.escape(meaning) in page
+    # beyond the paper: the learned localizer's figures per map, kidnaps, one section per map
+    learned = page.split('id="learned-localizer"', 1)[1].split("<h2", 1)[0]
+    assert "<td>sparse_obstacles</td><td>222</td><td>302</td><td>375,000</td>" in learned
+    assert "<td>simple_rooms</td><td>not trained</td>" in learned
+    assert (built / "reports/figures/kidnap_errors_sparse_obstacles.png").is_file()
+    assert "simple_rooms_kidnap: no trajectory or localizer tables." in page
+    for name in CONTEXT["maps"]:
+        assert f'<h2 id="map-{name}">Map {name}</h2>' in page
     md = (built / "reports/report.md").read_text(encoding="utf-8")
     for section_id, title in SECTIONS:
         assert f'<h2 id="{section_id}">{title}</h2>' in md
@@ -221,7 +250,7 @@ def test_report_is_byte_deterministic(built: Path) -> None:
 
 def test_missing_optional_artifacts_are_reported(tmp_path: Path) -> None:
     root = make_artifacts(tmp_path)
-    (root / "reports/localize/cnn_ensemble.csv").unlink()
+    (root / "reports/localize_cnn/sparse_obstacles_drive/cnn_ensemble.csv").unlink()
     shutil.rmtree(root / "models/transfer")
     shutil.rmtree(root / "data/maps/simple_rooms")
     build_report(root, root / "reports", {"profile": "smoke"}, THRESHOLDS)
@@ -235,16 +264,15 @@ def test_missing_optional_artifacts_are_reported(tmp_path: Path) -> None:
 
 def test_missing_required_artifacts_name_the_file(tmp_path: Path) -> None:
     root = make_artifacts(tmp_path)
-    (root / "data/trajectories/map1_drive/truth.npy").unlink()
+    (root / "data/trajectories/sparse_obstacles_drive/truth.npy").unlink()
     with pytest.raises(FileNotFoundError, match=r"truth\.npy"):
         build_report(root, root / "reports", CONTEXT, THRESHOLDS)
     root2 = make_artifacts(tmp_path / "second")
     (root2 / "reports/metrics/train_cnn2d.json").unlink()
     with pytest.raises(FileNotFoundError, match=r"train_cnn2d\.json"):
         build_report(root2, root2 / "reports", CONTEXT, THRESHOLDS)
-    pd.read_csv(root2 / "reports/localize/amcl.csv").iloc[:-1].to_csv(
-        root2 / "reports/localize/amcl.csv", index=False
-    )
+    amcl_csv = root2 / "reports/localize/sparse_obstacles_drive/amcl.csv"
+    pd.read_csv(amcl_csv).iloc[:-1].to_csv(amcl_csv, index=False)
     (root2 / "reports/metrics/train_cnn2d.json").write_text("{}")
     with pytest.raises(ValueError, match=r"amcl\.csv"):
         build_report(root2, root2 / "reports", CONTEXT, THRESHOLDS)
@@ -393,7 +421,9 @@ def test_report_renders_offline_in_chromium(built: Path, tmp_path: Path) -> None
     assert all(complete and width > 0 and height > 0 for complete, width, height, _ in images)
     assert all(shown <= 1100 for *_, shown in images)  # scaled to the column, no overflow
     assert found["scrollWidth"] <= 1366  # no horizontal scrolling on a laptop screen
-    assert found["sections"] == [section_id for section_id, _ in SECTIONS]
+    fixed = [section_id for section_id, _ in SECTIONS]
+    per_map = [f"map-{name}" for name in CONTEXT["maps"]]
+    assert found["sections"] == fixed[:-1] + per_map + fixed[-1:]
     remote = [u for u in found["requests"] if not u.startswith(("file:", "data:", "about:"))]
     assert remote == []
     assert not [m for m in found["messages"] if "Content Security Policy" in m]

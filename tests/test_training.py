@@ -101,8 +101,12 @@ def test_resume_from_last_checkpoint_equals_an_uninterrupted_run(
         ).read_bytes()
 
 
-def test_one_epoch_run_is_byte_deterministic(scans: Path, tmp_path: Path) -> None:
+def test_one_epoch_run_is_byte_deterministic(scans: Path, tmp_path: Path, capfd) -> None:
     a = train(scans, tmp_path / "a", model_cfg=CNN1D | {"dropout": 0.1})
+    # Not on a terminal: one plain line per epoch with its losses, errors and times.
+    epoch_line = [line for line in capfd.readouterr().err.splitlines() if line.startswith("epoch")]
+    assert len(epoch_line) == 1 and "1/1: train_mae " in epoch_line[0], epoch_line
+    assert "val_pos_err_m " in epoch_line[0] and " elapsed)" in epoch_line[0]
     b = train(scans, tmp_path / "b", model_cfg=CNN1D | {"dropout": 0.1})
     for name in ("model.pt", "last.pt", "history.csv"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()

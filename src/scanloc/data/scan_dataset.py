@@ -19,6 +19,7 @@ import json
 import math
 import os
 import sys
+import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from scanloc.io import atomic_dir, write_json
+from scanloc.progress import interactive, print_line, step_line
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.noise import NoiseModel, noise_from_config
 from scanloc.sensor.simulate import ScanSimulator, laser_spec_from_config
@@ -86,8 +88,8 @@ def generate_scan_dataset(
     if not (isinstance(seed, int | np.integer) and seed >= 0):
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     num_samples, seed = int(num_samples), int(seed)
-    if not 0.0 <= val_fraction < 1.0:
-        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction!r}")
+    if not 0.0 <= val_fraction <= 1.0:
+        raise ValueError(f"val_fraction must be in [0, 1], got {val_fraction!r}")
     if not (isinstance(chunk_size, int) and chunk_size >= 1):
         raise ValueError(f"chunk_size must be an integer >= 1, got {chunk_size!r}")
     noise = noise_cfg if isinstance(noise_cfg, NoiseModel) else noise_from_config(noise_cfg)
@@ -116,13 +118,11 @@ def generate_scan_dataset(
             tmp / "ranges.npy", mode="w+", dtype=np.float32, shape=(num_samples, spec.num_beams)
         )
         step = math.ceil(chunk_size / NOISE_BLOCK) * NOISE_BLOCK
+        label = f"scans {map_name}"
         progress = tqdm(
-            total=num_samples,
-            desc=f"scans {map_name}",
-            unit="scan",
-            file=sys.stderr,
-            disable=not sys.stderr.isatty(),
+            total=num_samples, desc=label, unit="scan", file=sys.stderr, disable=not interactive()
         )
+        started, tenths_done = time.perf_counter(), 0
         with progress:
             for start in range(0, num_samples, step):
                 stop = min(start + step, num_samples)
@@ -132,6 +132,9 @@ def generate_scan_dataset(
                     rng = _stream(seed, _STREAM_NOISE, block // NOISE_BLOCK)
                     ranges[block:end] = simulator.finish(cast[block - start : end - start], rng)
                 progress.update(stop - start)
+                if not interactive() and stop * 10 // num_samples > tenths_done:
+                    tenths_done = stop * 10 // num_samples  # a line per tenth done
+                    print_line(step_line(label, stop, num_samples, time.perf_counter() - started))
         ranges.flush()
         del ranges
         np.save(tmp / "poses.npy", poses)

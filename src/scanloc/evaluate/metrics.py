@@ -14,10 +14,22 @@ the 2×2 position covariance: the share of steps whose truth lies inside the 1σ
 
 Steps whose estimate is not finite count as missing: every statistic is taken over the valid
 steps and `frac_missing` says how many were dropped.
+
+Global localization and kidnapping (`convergence_metrics`): a localizer has converged at step s
+when its error stays below 0.5 m and 10° for the 20 steps from s on (a missing estimate counts
+as lost). `steps_to_converge` is the first such step of the run (before its first kidnap);
+`recovery_steps_<k>` counts from the k-th kidnap to the first converged step after it (before
+the next kidnap), summarised by their max and mean and the number `recovered`. A localizer
+that never converges in a stretch gets the stretch's length, a censored count ("not within
+these N steps"), so that every metric stays a number that DVC can show and compare; the flags
+`converged` (0/1) and `recovered` (of `kidnaps`) say which counts are censored. The tracking
+errors are taken over the converged stretches only (from convergence or recovery to the next
+kidnap); `frac_lost` is the share of all steps more than 1 m off.
 """
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +45,9 @@ GROSS_FAILURE_M = 1.0
 
 RECALL_DISTANCE_M = 0.5
 RECALL_ANGLE_DEG = 10.0
+CONVERGED_DISTANCE_M = 0.5
+CONVERGED_ANGLE_DEG = 10.0
+CONVERGED_STEPS = 20
 
 
 def recall_within(
@@ -155,3 +170,56 @@ def _calibration(table: pd.DataFrame, valid: np.ndarray, error: np.ndarray) -> d
     cov = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)[has_cov]
     d2 = mahalanobis_sq(error[has_cov], cov)
     return {"calib_within_1sigma": _share(d2 <= 1.0), "calib_within_2sigma": _share(d2 <= 4.0)}
+
+
+def first_converged(good: np.ndarray, start: int, stop: int, window: int = CONVERGED_STEPS) -> int:
+    """The first step s in [start, stop - window] with good[s : s + window] all True, or -1."""
+    run = 0
+    for step in range(start, stop):
+        run = run + 1 if good[step] else 0
+        if run == window:
+            return step - window + 1
+    return -1
+
+
+def convergence_metrics(
+    truth: np.ndarray, table: pd.DataFrame, kidnap_steps: tuple[int, ...] = ()
+) -> dict[str, float]:
+    """steps_to_converge, recovery_steps per kidnap, tracking errors after convergence and
+    frac_lost (see the module docstring)."""
+    truth = np.asarray(truth, dtype=np.float64)
+    est = table_poses(table)
+    pos = np.hypot(est[:, 0] - truth[:, 0], est[:, 1] - truth[:, 1])
+    heading = np.degrees(np.abs(wrap_angle(est[:, 2] - truth[:, 2])))
+    with np.errstate(invalid="ignore"):
+        good = (pos < CONVERGED_DISTANCE_M) & (heading < CONVERGED_ANGLE_DEG)
+        lost = ~(pos <= GROSS_FAILURE_M)  # NaN (no estimate) counts as lost
+    bounds = [0, *kidnap_steps, len(truth)]
+    tracking = np.zeros(len(truth), dtype=bool)
+    out: dict[str, float] = {}
+    recoveries = []
+    recovered = 0
+    for k, (start, stop) in enumerate(itertools.pairwise(bounds)):
+        s = first_converged(good, start, stop)
+        if s >= 0:
+            tracking[s:stop] = True
+        steps = float(s - start) if s >= 0 else float(stop - start)  # censored: the stretch
+        if k == 0:
+            out["steps_to_converge"] = steps
+            out["converged"] = int(s >= 0)
+        else:
+            recoveries.append(steps)
+            recovered += int(s >= 0)
+            out[f"recovery_steps_{k}"] = steps
+    if recoveries:
+        out["recovery_steps_max"] = max(recoveries)
+        out["recovery_steps_mean"] = float(np.mean(recoveries))
+        out["recovered"] = recovered
+        out["kidnaps"] = len(recoveries)
+    track = tracking & np.isfinite(pos)
+    out["tracking_pos_err_mean_m"] = float(pos[track].mean()) if track.any() else np.nan
+    out["tracking_pos_err_median_m"] = float(np.median(pos[track])) if track.any() else np.nan
+    out["tracking_heading_err_mean_deg"] = float(heading[track].mean()) if track.any() else np.nan
+    out["tracking_share"] = float(track.mean())
+    out["frac_lost"] = float(lost.mean())
+    return out

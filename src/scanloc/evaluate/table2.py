@@ -1,8 +1,10 @@
-"""Evaluate every localizer's estimate table and write the metrics JSON and Table 2.
+"""Evaluate every localizer's estimate table on one trajectory; write the metrics JSON and Table 2.
 
-`reports/metrics/localization.json` is `{method: {metric: value}}` with sorted keys and values
-rounded to 6 significant digits (NaN written as null), so that identical estimates give
-identical bytes; only `time_per_scan_s` varies from run to run.
+`reports/metrics/localization_<trajectory>.json` is `{method: {metric: value}}` with sorted keys
+and values rounded to 6 significant digits (NaN written as null), so that identical estimates
+give identical bytes; only the timing figures vary from run to run. Each method gets Table 2's
+and the modern metrics, the global-localization and kidnap metrics, and, for a localizer that
+writes ranked hypotheses (`<method>_hypotheses.npz`), the top-1/5/20 recall.
 """
 
 from __future__ import annotations
@@ -15,11 +17,18 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scanloc.evaluate.metrics import localization_metrics, read_estimates
+from scanloc.evaluate.metrics import (
+    convergence_metrics,
+    localization_metrics,
+    read_estimates,
+    recall_within,
+)
 from scanloc.io import atomic_path, read_json
 
 METHOD_ORDER = ("amcl", "cnn_single", "cnn_ensemble")
 TIMING_SUFFIX = "_timing.json"
+HYPOTHESES_SUFFIX = "_hypotheses.npz"
+RECALL_K = (1, 5, 20)
 
 
 def ordered_methods(names: list[str] | Mapping[str, object]) -> list[str]:
@@ -31,15 +40,28 @@ def ordered_methods(names: list[str] | Mapping[str, object]) -> list[str]:
 def evaluate_all(
     truth: np.ndarray,
     tables: Mapping[str, pd.DataFrame],
-    timings: Mapping[str, float],
+    timings: Mapping[str, Mapping[str, float]],
     sources: Mapping[str, str] | None = None,
+    kidnap_steps: tuple[int, ...] = (),
+    hypotheses: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, dict[str, float]]:
-    """Metrics of each localizer; `sources` (method → file) only improves error messages."""
-    sources = sources or {}
-    return {
-        name: localization_metrics(truth, tables[name], timings.get(name), sources.get(name, name))
-        for name in ordered_methods(tables)
-    }
+    """Metrics of each localizer; `sources` (method → file) only improves error messages;
+    `hypotheses` (method → (T, K, 3) ranked poses) adds the top-K recall."""
+    sources, hypotheses = sources or {}, hypotheses or {}
+    out = {}
+    for name in ordered_methods(tables):
+        timing = timings.get(name, {})
+        metrics = localization_metrics(
+            truth, tables[name], timing.get("time_per_scan_s"), sources.get(name, name)
+        )
+        metrics |= convergence_metrics(truth, tables[name], kidnap_steps)
+        metrics |= {k: v for k, v in timing.items() if k in ("setup_s", "time_per_scan_median_s")}
+        if name in hypotheses:
+            for k in RECALL_K:
+                hit = recall_within(hypotheses[name][:, :k], truth)
+                metrics[f"top{k}_recall"] = float(hit.mean())
+        out[name] = metrics
+    return out
 
 
 def round_sig(value: float | int, digits: int = 6) -> float | int | None:
@@ -96,6 +118,29 @@ MODERN_COLUMNS: tuple[tuple[str, str, Callable[[float | None], str]], ...] = (
 )
 
 
+GLOBAL_COLUMNS: tuple[tuple[str, str, Callable[[float | None], str]], ...] = (
+    ("steps_to_converge", "steps to converge", _fixed(0)),
+    ("converged", "converged", _fixed(0)),
+    ("recovery_steps_max", "recovery steps (max)", _fixed(0)),
+    ("recovery_steps_mean", "recovery steps (mean)", _fixed(1)),
+    ("recovered", "kidnaps recovered", _fixed(0)),
+    ("tracking_pos_err_mean_m", "tracking pos. error mean [m]", _fixed(3)),
+    ("tracking_pos_err_median_m", "median [m]", _fixed(3)),
+    ("tracking_heading_err_mean_deg", "heading mean [°]", _fixed(2)),
+    ("frac_lost", "lost (> 1 m)", _percent),
+    ("top5_recall", "top-5 recall", _percent),
+)
+GLOBAL_NOTE = (
+    "Converged: the error stays below 0.5 m and 10° for 20 consecutive steps. Steps to "
+    "converge count from the start, recovery steps from each kidnap; a localizer that does not "
+    "converge within a stretch (the run, or up to the next kidnap) gets the stretch's length, "
+    "with converged = 0 or fewer kidnaps recovered; tracking errors are over the converged "
+    "stretches only; "
+    "top-5 recall: the truth within 0.5 m and 10° of one of a learned localizer's 5 best "
+    "hypotheses."
+)
+
+
 def format_rows(
     metrics: Mapping[str, Mapping[str, float | None]],
     columns: tuple[tuple[str, str, Callable[[float | None], str]], ...],
@@ -123,10 +168,12 @@ TABLE2_NOTE = (
 )
 
 
-def table2_markdown(metrics: Mapping[str, Mapping[str, float | None]], steps: int) -> str:
-    """Table 2 and the modern metrics as a Markdown document."""
+def table2_markdown(
+    metrics: Mapping[str, Mapping[str, float | None]], steps: int, trajectory: str
+) -> str:
+    """Table 2, the modern metrics and the global-localization table as a Markdown document."""
     return (
-        f"# Table 2: localization error on the map-1 trajectory ({steps} steps)\n\n"
+        f"# Table 2: localization error on trajectory {trajectory} ({steps} steps)\n\n"
         f"{TABLE2_NOTE}\n\n"
         + markdown_table(*format_rows(metrics, TABLE2_COLUMNS))
         + "\n## Modern metrics\n\n"
@@ -134,38 +181,102 @@ def table2_markdown(metrics: Mapping[str, Mapping[str, float | None]], steps: in
         "calibration = share of steps whose true position lies inside the 1σ / 2σ ellipse "
         "of the estimate's position covariance (a calibrated Gaussian: 39.3 % / 86.5 %).\n\n"
         + markdown_table(*format_rows(metrics, MODERN_COLUMNS))
+        + "\n## Global localization and kidnapping\n\n"
+        f"{GLOBAL_NOTE}\n\n" + markdown_table(*format_rows(metrics, GLOBAL_COLUMNS))
     )
 
 
-def read_timings(localize_dir: Path) -> dict[str, float]:
-    """`time_per_scan_s` of each `<method>_timing.json` in the folder."""
+def read_timings(path: Path) -> dict[str, dict[str, float]]:
+    """{localizer: timing figures} of a localize stage's timing file (absent: none)."""
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    doc = read_json(path)
     timings = {}
-    for path in sorted(Path(localize_dir).glob(f"*{TIMING_SUFFIX}")):
-        doc = read_json(path)
-        value = doc.get("time_per_scan_s") if isinstance(doc, dict) else None
+    for name, figures in doc.items() if isinstance(doc, dict) else ():
+        value = figures.get("time_per_scan_s") if isinstance(figures, dict) else None
         if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise ValueError(f"{path}: field 'time_per_scan_s': expected a number, got {value!r}")
-        timings[path.name.removesuffix(TIMING_SUFFIX)] = float(value)
+            raise ValueError(
+                f"{path}: field '{name}.time_per_scan_s': expected a number, got {value!r}"
+            )
+        timings[name] = {k: float(v) for k, v in figures.items() if isinstance(v, (int, float))}
     return timings
 
 
-def evaluate_dir(
-    truth_path: Path, localize_dir: Path, out_json: Path, out_md: Path
-) -> dict[str, dict[str, float]]:
-    """Evaluate every `<method>.csv` in `localize_dir` against `truth_path` (truth.npy) and
-    write the metrics JSON and the Table 2 Markdown. Returns the (unrounded) metrics."""
+def read_hypotheses(localize_dir: Path, steps: int) -> dict[str, np.ndarray]:
+    """The ranked hypotheses (T, K, 3) of each `<method>_hypotheses.npz` in the folder."""
+    found = {}
+    for path in sorted(Path(localize_dir).glob(f"*{HYPOTHESES_SUFFIX}")):
+        with np.load(path) as data:
+            poses = data["poses"]
+        if poses.ndim != 3 or poses.shape[0] != steps or poses.shape[2] != 3:
+            raise ValueError(f"{path}: 'poses' must have shape ({steps}, K, 3), got {poses.shape}")
+        found[path.name.removesuffix(HYPOTHESES_SUFFIX)] = poses
+    return found
+
+
+def load_truth(trajectory_dir: Path) -> tuple[np.ndarray, tuple[int, ...]]:
+    """A trajectory's true poses (T, 3) and kidnap steps (from meta.json)."""
+    truth_path = Path(trajectory_dir) / "truth.npy"
+    if not truth_path.is_file():
+        raise FileNotFoundError(f"{truth_path}: file not found (expected a saved trajectory)")
     truth = np.load(truth_path)
     if truth.ndim != 2 or truth.shape[1] != 3:
         raise ValueError(f"{truth_path}: expected true poses of shape (T, 3), got {truth.shape}")
-    paths = {p.stem: p for p in sorted(Path(localize_dir).glob("*.csv"))}
+    meta_path = Path(trajectory_dir) / "meta.json"
+    meta = read_json(meta_path) if meta_path.is_file() else {}
+    return truth, tuple(int(k) for k in meta.get("kidnap_steps", ()))
+
+
+def evaluate_trajectory(
+    trajectory_dir: Path, localize_dirs: list[Path], timing_files: list[Path]
+) -> dict[str, dict[str, float]]:
+    """The metrics of every `<method>.csv` in the localize folders against the trajectory."""
+    truth, kidnaps = load_truth(trajectory_dir)
+    paths = {
+        p.stem: p
+        for folder in localize_dirs
+        if folder.is_dir()
+        for p in sorted(folder.glob("*.csv"))
+    }
     if not paths:
-        raise FileNotFoundError(f"{localize_dir}: no <method>.csv estimate tables found")
+        raise FileNotFoundError(
+            f"{', '.join(map(str, localize_dirs))}: no <method>.csv estimate tables found"
+        )
     tables = {name: read_estimates(path) for name, path in paths.items()}
+    timings: dict[str, dict[str, float]] = {}
+    for timing_file in timing_files:
+        timings |= read_timings(timing_file)
+    hypotheses: dict[str, np.ndarray] = {}
+    for folder in localize_dirs:
+        if folder.is_dir():
+            hypotheses |= read_hypotheses(folder, len(truth))
     sources = {name: str(path) for name, path in paths.items()}
-    metrics = evaluate_all(truth, tables, read_timings(localize_dir), sources)
-    text = metrics_json(metrics)
+    return evaluate_all(truth, tables, timings, sources, kidnaps, hypotheses)
+
+
+def evaluate_runs(
+    trajectories: list[str],
+    trajectory_root: Path,
+    localize_roots: list[Path],
+    timing_dir: Path,
+    out_json: Path,
+    table2_dir: Path,
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Evaluate each named trajectory; write {trajectory: {method: metrics}} as one JSON and
+    one Table 2 Markdown per trajectory. Returns the (unrounded) metrics."""
+    metrics = {}
+    for name in trajectories:
+        metrics[name] = evaluate_trajectory(
+            trajectory_root / name,
+            [root / name for root in localize_roots],
+            [Path(timing_dir) / f"{name}.json", Path(timing_dir) / f"{name}_cnn.json"],
+        )
+    rounded = {name: json.loads(metrics_json(m)) for name, m in metrics.items()}
     with atomic_path(out_json) as tmp:
-        tmp.write_text(text, encoding="utf-8")
-    with atomic_path(out_md) as tmp:
-        tmp.write_text(table2_markdown(json.loads(text), len(truth)), encoding="utf-8")
+        tmp.write_text(json.dumps(rounded, sort_keys=True, indent=2) + "\n", encoding="utf-8")
+    for name, doc in rounded.items():
+        steps = len(load_truth(trajectory_root / name)[0])
+        with atomic_path(Path(table2_dir) / f"{name}.md") as tmp:
+            tmp.write_text(table2_markdown(doc, steps, name), encoding="utf-8")
     return metrics

@@ -430,20 +430,26 @@ def run_amcl(
     params: AmclParams | None = None,
     mode: str = "tracking",
     seed: int = 0,
-    proposal: Proposal | None = None,
 ) -> Localization:
     """Run amcl over a driven trajectory: the per-step table and what each scan cost.
 
-    `trajectory` needs `times`, `truth` and `odometry` arrays (see trajectory.Trajectory).
     Tracking starts from the true first pose with the initial_cov_* covariance; global mode
-    from particles drawn from the proposal (uniform over the free space by default). amcl
-    updates its filter only after update_min_d / update_min_a of motion and re-estimates only
-    when it resamples; the rows in between hold the last estimate carried forward by odometry
-    (what amcl's map→odom transform gives), with that estimate's covariance.
-
-    Setup (the sensor model's tables, the kernels' first call) is timed apart from the
-    per-scan updates.
+    from particles uniform over the free space. amcl updates its filter only after
+    update_min_d / update_min_a of motion and re-estimates only when it resamples; the rows in
+    between hold the last estimate carried forward by odometry (what amcl's map→odom transform
+    gives), with that estimate's covariance.
     """
+    start = time.perf_counter()
+    amcl = Amcl(grid, spec, params, seed=seed)
+    return run_filter(amcl, trajectory, ranges, mode, time.perf_counter() - start)
+
+
+def run_filter(
+    amcl: Amcl, trajectory: object, ranges: np.ndarray, mode: str, setup_s: float = 0.0
+) -> Localization:
+    """Run a built filter over a trajectory (`times`, `truth`, `odometry` arrays, see
+    trajectory.Trajectory): tracking from the true first pose, or global. Setup (building the
+    filter, `setup_s`, and the kernels' first call) is timed apart from the per-scan updates."""
     if mode not in ("tracking", "global"):
         raise ValueError(f"mode must be 'tracking' or 'global', got {mode!r}")
     times = np.asarray(trajectory.times)  # type: ignore[attr-defined]
@@ -456,13 +462,12 @@ def run_amcl(
             f"got {ranges.shape}"
         )
     start = time.perf_counter()
-    amcl = Amcl(grid, spec, params, seed=seed, proposal=proposal)
     if mode == "tracking":
         amcl.initialize_pose(truth[0])
     else:
         amcl.initialize_global()
     amcl.warm_up(ranges[0])
-    setup_s = time.perf_counter() - start
+    setup_s += time.perf_counter() - start
     estimates, seconds = [], np.empty(len(odometry))
     for step in range(len(odometry)):
         tick = time.perf_counter()

@@ -47,13 +47,16 @@ class Localization(NamedTuple):
     Every localizer is timed alike: `scan_seconds` holds the wall time of each scan's own work
     (one filter update, or one network inference for that scan alone), and `setup_s` the
     one-off work before the first scan (map tables, model loading, compilation).
-    `counts` carries event counts a localizer reports (e.g. gate rejections).
+    `counts` carries event counts a localizer reports (e.g. gate rejections); `hypotheses`, for
+    a localizer with ranked hypotheses, arrays "poses" (T, K, 3), "weights" (T, K) and "stds"
+    (T, K, 3), best first.
     """
 
     table: pd.DataFrame
     setup_s: float
     scan_seconds: np.ndarray
     counts: Mapping[str, int] | None = None
+    hypotheses: Mapping[str, np.ndarray] | None = None
 
     def timing(self) -> dict[str, float | int]:
         """What the localize stage writes to <method>_timing.json."""

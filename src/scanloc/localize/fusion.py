@@ -35,7 +35,6 @@ from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
 
 from scanloc.localize.config_params import params_from_config
 from scanloc.localize.estimates import estimate_table, wrap_angle
@@ -146,6 +145,8 @@ def fuse_odometry(
     if not np.isfinite(odometry).all():
         raise ValueError("odometry must be finite at every step")
     alphas = (params.odom_alpha1, params.odom_alpha2, params.odom_alpha3, params.odom_alpha4)
+    from scipy.stats import chi2  # imported here: scipy.stats takes a second to load
+
     gate = chi2.ppf(params.gate_probability, df=3)
     means = np.full((steps, 3), np.nan)
     covs = np.full((steps, 3, 3), np.nan)

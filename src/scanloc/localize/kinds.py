@@ -12,10 +12,14 @@ from typing import Any
 
 import numpy as np
 
-from scanloc.localize.amcl import AmclParams, run_amcl
+from scanloc.localize.amcl import AmclParams, run_amcl, run_filter
 from scanloc.localize.cnn_localizer import localize_cnn
 from scanloc.localize.estimates import Localization, table_covariances, table_poses
 from scanloc.localize.fusion import FusionParams, fuse_odometry
+from scanloc.localize.hybrid import HybridAmcl, HybridParams, LearnedProposal
+from scanloc.localize.hypothesis_tracker import TrackerParams, track_hypotheses
+from scanloc.localize.learned_localizer import localize_learned, scan_hypotheses
+from scanloc.localize.proposals import UniformProposal
 from scanloc.localize.trajectory import Trajectory
 from scanloc.sensor.laser import LaserSpec
 from scanloc.world.map_server import load_map
@@ -23,6 +27,8 @@ from scanloc.world.occupancy_grid import OccupancyGrid
 
 # Keys of a localizer config that describe it rather than parametrise its filter.
 META_KEYS = ("name", "kind", "mode", "seed")
+# Keys of a hybrid config beside amcl's parameters: the learned model and its proposal.
+HYBRID_KEYS = ("model", "k", "k_raw", "nms_distance", "nms_angle_deg", "proposal")
 
 
 @dataclass(frozen=True)
@@ -76,6 +82,26 @@ def run_amcl_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localizatio
     return run._replace(setup_s=run.setup_s + loaded)
 
 
+def run_hybrid_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+    """amcl with the learned localizer's hypotheses as its proposal (hybrid.py)."""
+    start = time.perf_counter()
+    hybrid = HybridParams.from_config(dict(cfg["proposal"]))
+    grid = inputs.grid
+    params = amcl_params({k: v for k, v in cfg.items() if k not in HYBRID_KEYS})
+    _, hypotheses_of, _ = scan_hypotheses(Path(cfg["model"]), inputs.ranges, **learned_options(cfg))
+    proposal = LearnedProposal(
+        hypotheses_of, UniformProposal(grid, params.map_half_cell_offset), hybrid
+    )
+    amcl = HybridAmcl(grid, inputs.laser, params, proposal, hybrid, seed=int(cfg.get("seed", 0)))
+    return run_filter(
+        amcl,
+        inputs.trajectory,
+        inputs.ranges,
+        str(cfg.get("mode", "global")),
+        time.perf_counter() - start,
+    )
+
+
 def run_cnn_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """The paper's CNN localizers: one network, or the mean of an ensemble, per scan."""
     traj = inputs.trajectory
@@ -99,10 +125,40 @@ def run_fusion_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localizat
     return Localization(fused.table, cnn.setup_s, cnn.scan_seconds + per_step, counts)
 
 
+def learned_options(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """The learned localizer's decoding options of a localizer config."""
+    keys = ("k", "k_raw", "nms_distance", "nms_angle_deg")
+    return {key: cfg[key] for key in keys if key in cfg}
+
+
+def run_learned_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+    """scanloc's learned localizer: ranked hypotheses from each scan alone."""
+    return localize_learned(
+        Path(cfg["model"]), inputs.ranges, inputs.trajectory.times, **learned_options(cfg)
+    )
+
+
+def run_learned_tracking_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+    """The learned localizer's hypotheses tracked over time with odometry (a Gaussian sum)."""
+    params = TrackerParams.from_config(dict(cfg["tracker"]))
+    learned = run_learned_kind(cfg, inputs)
+    start = time.perf_counter()
+    u = UniformProposal(inputs.grid).uniform_density
+    traj = inputs.trajectory
+    table = track_hypotheses(traj.odometry, traj.times, learned.hypotheses, u, params)
+    per_step = (time.perf_counter() - start) / len(table)
+    return Localization(
+        table, learned.setup_s, learned.scan_seconds + per_step, hypotheses=learned.hypotheses
+    )
+
+
 LOCALIZER_KINDS: dict[str, Callable[[Mapping[str, Any], LocalizeInputs], Localization]] = {
     "amcl": run_amcl_kind,
     "cnn": run_cnn_kind,
     "fusion": run_fusion_kind,
+    "learned": run_learned_kind,
+    "learned_tracking": run_learned_tracking_kind,
+    "hybrid": run_hybrid_kind,
 }
 
 

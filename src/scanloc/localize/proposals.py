@@ -44,7 +44,9 @@ class UniformProposal:
             ]
         )
         self.grid = grid
-        self._density = 1.0 / (free_rows.size * grid.resolution**2 * 2.0 * math.pi)
+        self.free = grid.free  # (the grid's property recomputes the mask on every call)
+        # per m² and radian: 1 / (free area · 2π)
+        self.uniform_density = 1.0 / (free_rows.size * grid.resolution**2 * 2.0 * math.pi)
 
     def poses_from_uniforms(self, u: np.ndarray) -> np.ndarray:
         """Poses from uniforms u (n, 2) in [0, 1): u[:, 0] picks the cell, u[:, 1] the heading."""
@@ -60,5 +62,5 @@ class UniformProposal:
         g = self.grid
         inside = (col >= 0) & (col < g.width) & (row >= 0) & (row < g.height)
         free = np.zeros(len(poses), dtype=bool)
-        free[inside] = g.free[row[inside], col[inside]]
-        return np.where(free, self._density, 0.0)
+        free[inside] = self.free[row[inside], col[inside]]
+        return np.where(free, self.uniform_density, 0.0)

@@ -423,7 +423,10 @@ def _route_png(traj: Trajectory, grid: OccupancyGrid | None) -> bytes:
         w, h = grid.size_m
         extent = (grid.origin[0], grid.origin[0] + w, grid.origin[1], grid.origin[1] + h)
         ax.imshow(shade, cmap="gray", vmin=0, vmax=1, origin="lower", extent=extent)
-    ax.plot(traj.truth[:, 0], traj.truth[:, 1], color="tab:blue", lw=1.2, label="truth")
+    truth = np.insert(traj.truth[:, :2], list(traj.kidnap_steps), np.nan, axis=0)  # no jumps
+    ax.plot(truth[:, 0], truth[:, 1], color="tab:blue", lw=1.2, label="truth")
+    for k in traj.kidnap_steps:
+        ax.plot(*traj.truth[k, :2], "*", color="tab:purple", ms=10)
     ax.plot(
         traj.odometry[:, 0],
         traj.odometry[:, 1],
@@ -438,7 +441,8 @@ def _route_png(traj: Trajectory, grid: OccupancyGrid | None) -> bytes:
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"driven route: {len(traj.times)} steps")
+    kidnaps = f", kidnapped at steps {list(traj.kidnap_steps)} (stars)" if traj.kidnap_steps else ""
+    ax.set_title(f"driven route: {len(traj.times)} steps{kidnaps}", fontsize=9)
     ax.legend(loc="upper right", fontsize=8)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})

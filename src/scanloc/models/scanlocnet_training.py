@@ -15,7 +15,6 @@ it returns those metrics plus the machine-dependent epoch_s and device.
 from __future__ import annotations
 
 import statistics
-import sys
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -38,12 +37,22 @@ from scanloc.models.training import (
     build_model,
     count_parameters,
     keep_freed_memory,
+    print_epoch_line,
     save_model,
     trainer_arguments,
     uses_cuda,
 )
+from scanloc.progress import interactive
 
 RECALL_K = (1, 5, 20)
+# The epoch line's columns (scanloc.progress.EpochLine) and their formats.
+EPOCH_KEYS = {
+    "train_loss": ".3f",
+    "val_loss": ".3f",
+    "val_pos_err_median_m": ".3f",
+    "val_heading_err_median_deg": ".1f",
+    "val_top5_recall": ".3f",
+}
 HISTORY_COLUMNS = (
     "epoch",
     "train_loss",
@@ -166,14 +175,7 @@ class ScanLocModule(L.LightningModule):
         row["lr"] = float(self.lr_schedulers().get_last_lr()[0])
         self.history.append(row)
         self.model.train()
-        print(
-            f"epoch {row['epoch']}: train loss {row['train_loss']:.3f}, val loss "
-            f"{row['val_loss']:.3f}, val median {row['val_pos_err_median_m']:.3f} m / "
-            f"{row['val_heading_err_median_deg']:.1f}°, top-5 recall {row['val_top5_recall']:.3f} "
-            f"({self.epoch_seconds[-1]:.1f} s)",
-            file=sys.stderr,
-            flush=True,
-        )
+        print_epoch_line("scanlocnet epoch", EPOCH_KEYS, self)
 
     @torch.no_grad()
     def evaluate(self) -> dict[str, float]:
@@ -274,14 +276,13 @@ def fit_scanlocnet(
     module = ScanLocModule(
         model, lr, weight_decay, epochs * steps_per_epoch, pct_start, val_ranges, val_poses
     )
-    interactive = sys.stderr.isatty()
     trainer = L.Trainer(
         max_epochs=epochs,
         logger=False,
         enable_checkpointing=False,
         num_sanity_val_steps=0,
         limit_val_batches=0,
-        enable_progress_bar=interactive,
+        enable_progress_bar=interactive(),
         enable_model_summary=False,
         **kwargs,
     )

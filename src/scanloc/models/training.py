@@ -29,7 +29,6 @@ import json
 import logging
 import os
 import statistics
-import sys
 import tempfile
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -52,6 +51,7 @@ from scanloc.data.scan_dataset import ScanDataset, load_scan_dataset
 from scanloc.hardware import training_device
 from scanloc.io import atomic_path, write_json
 from scanloc.models.pose_regressor import HISTORY_COLUMNS, PoseRegressor
+from scanloc.progress import interactive, print_line, step_line
 
 PathLike = str | os.PathLike[str]
 TRAINER_DEFAULTS: dict[str, Any] = {
@@ -288,6 +288,34 @@ def _run_dir(checkpoint_dir: PathLike | None, key: Callable[[], str]) -> Iterato
 # ---------------------------------------------------------------- training
 
 
+# The epoch line's columns (scanloc.progress.EpochLine) and their formats.
+EPOCH_KEYS = {
+    "train_mae": ".4f",
+    "val_mae": ".4f",
+    "val_pos_err_m": ".3f",
+    "val_heading_err_deg": ".2f",
+}
+
+
+def print_epoch_line(label: str, keys: Mapping[str, str], module: L.LightningModule) -> None:
+    """One line per epoch when not on a terminal (Lightning's bar is off there): the epoch, the
+    losses, the validation position error and the elapsed/expected time, from the module's
+    newest `history` row and its `epoch_seconds` (PoseRegressor and ScanLocModule keep both)."""
+    if interactive() or not module.trainer.is_global_zero or not module.history:
+        return
+    row = module.history[-1]
+    values = {key: format(row[key], fmt) for key, fmt in keys.items() if key in row}
+    elapsed = sum(module.epoch_seconds)
+    print_line(step_line(label, int(row["epoch"]), module.trainer.max_epochs, elapsed, values))
+
+
+class _EpochLine(Callback):
+    """print_epoch_line after PoseRegressor's validation (which appends the history row)."""
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: PoseRegressor) -> None:
+        print_epoch_line("epoch", EPOCH_KEYS, pl_module)
+
+
 class _Snapshots(Callback):
     """Model files of chosen epochs, kept beside the checkpoints until the run ends."""
 
@@ -391,7 +419,7 @@ def keep_freed_memory() -> bool:
 
 def _quiet_lightning() -> None:
     """Keep Lightning's banner lines (GPU available, TPU...) out of non-interactive logs."""
-    if not sys.stderr.isatty():
+    if not interactive():
         for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.seed"):
             logging.getLogger(name).setLevel(logging.WARNING)
 
@@ -466,15 +494,18 @@ def fit(
             enable_version_counter=False,
         )
         snapshots = _Snapshots(run_dir / "snapshots", snapshot_epochs, model_cfg)
-        interactive = sys.stderr.isatty()
         trainer = L.Trainer(
             max_epochs=epochs,
             logger=False,
-            callbacks=[best_checkpoint, last_checkpoint, snapshots],
+            callbacks=[best_checkpoint, last_checkpoint, snapshots, _EpochLine()],
             default_root_dir=run_dir,
             num_sanity_val_steps=0,
             check_val_every_n_epoch=1,
-            **{"enable_progress_bar": interactive, "enable_model_summary": interactive, **kwargs},
+            **{
+                "enable_progress_bar": interactive(),
+                "enable_model_summary": interactive(),
+                **kwargs,
+            },
         )
         last = run_dir / "last.ckpt"
         with warnings.catch_warnings():

@@ -10,13 +10,10 @@ raise an error naming the file, optional ones are reported as missing in their s
 
 from __future__ import annotations
 
-import base64
-import html
 import importlib.metadata
 import math
 import platform
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +28,6 @@ from scanloc.evaluate.table2 import (
     TABLE2_COLUMNS,
     TABLE2_NOTE,
     format_rows,
-    markdown_table,
     ordered_methods,
 )
 from scanloc.hardware import describe_machine
@@ -47,6 +43,16 @@ from scanloc.report.claims import (
     Run,
     check_claims,
 )
+from scanloc.report.document import (
+    Builder,
+    Para,
+    Pre,
+    Section,
+    Table,
+    render_html,
+    render_markdown,
+)
+from scanloc.report.summary import headline_metrics
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.world.map_server import load_map
@@ -59,8 +65,12 @@ SECTIONS: tuple[tuple[str, str], ...] = (
     ("localization", "Localization"),
     ("table-2", "Table 2"),
     ("paper-claims", "Paper claims"),
+    ("learned-localizer", "Beyond the paper: a learned localizer that localizes"),
+    ("global-localization", "Global localization and kidnapping"),
+    ("real-data", "Real data"),
     ("provenance", "Provenance"),
 )
+# And one section per map of params.yaml `maps` (id map-<name>), before the provenance.
 MAPS = {"sparse_obstacles": "map 1 (paper Fig. 6)", "simple_rooms": "map 2 (paper Fig. 8)"}
 MAP1 = "sparse_obstacles"
 ROWS = {"mlp": "MLP", "cnn1d_20k": "1D CNN 20k", "cnn1d_200k": "1D CNN 200k", "cnn2d": "2D CNN"}
@@ -68,7 +78,13 @@ TRANSFER = {"transfer/scratch": "random init", "transfer/pretrained": "pre-train
 METHOD_NOTES = {
     "amcl": "Monte Carlo localization (ROS amcl as implemented) from scans and odometry, "
     "tracking from the first true pose; hypotheses = particles",
-    "amcl_global": "the same amcl without an initial pose (global localization)",
+    "amcl_global": "the same amcl without an initial pose (global localization), recovery off",
+    "amcl_recovery": "amcl without an initial pose, recovery on (ROS 1's 0.001 / 0.1)",
+    "scanlocnet": "beyond the paper: scanloc's learned localizer, each scan alone (its best "
+    "hypothesis; hypotheses = its ranked k)",
+    "scanlocnet_track": "beyond the paper: the learned localizer's hypotheses tracked with "
+    "odometry (Gaussian-sum filter; hypotheses = components)",
+    "hybrid": "beyond the paper: amcl with the learned localizer as its proposal, no initial pose",
     "amcl_nav2": "amcl with ROS 2 nav2's defaults (diff-corrected odometry model)",
     "cnn_single": "one 1D CNN (Table 1 row cnn1d_200k), each scan alone",
     "cnn_ensemble": "mean of several 1D CNNs (circular mean for θ), each scan alone; "
@@ -76,10 +92,12 @@ METHOD_NOTES = {
     "cnn_ekf": "beyond the paper: an EKF fusing the ensemble's poses (with its covariance) with "
     "odometry over time, outliers gated; hypotheses = 1 Gaussian",
 }
-TRAJECTORY = Path("data/trajectories/map1_drive")
+PAPER_RUN = "sparse_obstacles_drive"  # paper §4.4: the drive through map 1
+TRAJECTORIES = Path("data/trajectories")
+TRAJECTORY = TRAJECTORIES / PAPER_RUN
 METRICS_DIR = Path("reports/metrics")
 METRICS_JSON = METRICS_DIR / "localization.json"
-LOCALIZE_DIR = Path("reports/localize")
+LOCALIZE_DIRS = (Path("reports/localize"), Path("reports/localize_cnn"))
 TIMING_DIR = Path("reports/timing")
 RASTER_SIZE, RASTER_MAX_RANGE = 384, 7.1  # paper eq. 1–4 and the author's code (7.0 + 0.1)
 PACKAGES = ("torch", "lightning", "numpy", "hydra-core", "dvc", "numba", "matplotlib", "pandas")
@@ -127,57 +145,6 @@ TABLE1_PARAMS = (
     ("dropout", "Dropout"),
     ("samples", "Samples"),
 )
-CSS = """
-body{font:15px/1.5 system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;color:#222;margin:0;
-background:#fafafa}
-main{max-width:1100px;margin:0 auto;padding:1em 1.5em 4em;background:#fff}
-h1{font-size:1.6em;margin-bottom:.2em}h2{border-bottom:2px solid #ddd;padding-top:.8em}
-nav a{margin-right:1em}table{border-collapse:collapse;margin:.8em 0;font-size:.86em;
-display:block;overflow-x:auto;max-width:100%}
-th,td{border:1px solid #ccc;padding:.25em .5em;text-align:left;vertical-align:top}
-th{background:#f0f0f0}figure{margin:1em 0}img{max-width:100%;height:auto;box-sizing:border-box;
-border:1px solid #eee}figcaption{font-size:.9em;color:#555}
-pre{background:#f6f6f6;padding:.6em;overflow-x:auto;font-size:.82em}
-.v-reproduced td{background:#d4edc9}.v-direction td{background:#fbefc4}
-.v-not td{background:#f5d0d0}.v-untestable td{background:#e6e6e6}
-"""
-CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
-
-
-# ---------------------------------------------------------------- document model
-
-
-@dataclass(frozen=True)
-class Para:
-    text: str
-
-
-@dataclass(frozen=True)
-class Table:
-    header: list[str]
-    rows: list[list[str]]
-    row_classes: list[str] | None = None
-
-
-@dataclass(frozen=True)
-class Figure:
-    file: str  # file name under <out_dir>/figures/
-    caption: str
-
-
-@dataclass(frozen=True)
-class Pre:
-    summary: str
-    text: str
-
-
-@dataclass
-class Section:
-    id: str
-    title: str
-    blocks: list[Para | Table | Figure | Pre] = field(default_factory=list)
-
-
 # ---------------------------------------------------------------- artifact loading
 
 
@@ -216,15 +183,27 @@ def load_runs(root: Path) -> dict[str, Run]:
     return {name: run for name, run in runs.items() if run is not None}
 
 
-def load_tables(root: Path, steps: int) -> dict[str, pd.DataFrame]:
-    """Every reports/localize/<method>.csv, in report order, checked against the truth length."""
-    paths = {p.stem: p for p in sorted((root / LOCALIZE_DIR).glob("*.csv"))}
+def load_tables(root: Path, run: str, steps: int) -> dict[str, pd.DataFrame]:
+    """Every <method>.csv of trajectory `run` (reports/localize/<run>/ and
+    reports/localize_cnn/<run>/), in report order, checked against the truth length."""
+    paths = {
+        p.stem: p for folder in LOCALIZE_DIRS for p in sorted((root / folder / run).glob("*.csv"))
+    }
     tables = {}
     for name in ordered_methods(paths):
         table = pd.read_csv(paths[name])
         check_table(table, str(paths[name]), steps)
         tables[name] = table
     return tables
+
+
+def load_truth(root: Path, run: str) -> np.ndarray:
+    """True poses (T, 3) of trajectory `run`."""
+    truth_path = _required(root / TRAJECTORIES / run / "truth.npy", "true trajectory")
+    truth = np.load(truth_path)
+    if truth.ndim != 2 or truth.shape[1] != 3:
+        raise ValueError(f"{truth_path}: expected true poses of shape (T, 3), got {truth.shape}")
+    return truth
 
 
 def dataset_map_name(meta: Mapping[str, Any]) -> str:
@@ -291,22 +270,7 @@ def package_versions() -> list[list[str]]:
 # ---------------------------------------------------------------- sections
 
 
-class _Builder:
-    """Collects sections and writes each figure once, remembering its file name."""
-
-    def __init__(self, root: Path, out_dir: Path, context: Mapping[str, Any]) -> None:
-        self.root, self.out_dir, self.context = root, out_dir, context
-        self.figure_dir = out_dir / "figures"
-        self.written: list[str] = []
-
-    def figure(self, name: str, caption: str, draw: Callable[[Path], object]) -> Figure:
-        """Draw a figure into <out_dir>/figures/<name> and return its block."""
-        draw(self.figure_dir / name)
-        self.written.append(name)
-        return Figure(name, caption)
-
-
-def maps_section(b: _Builder) -> tuple[Section, dict[str, OccupancyGrid]]:
+def maps_section(b: Builder) -> tuple[Section, dict[str, OccupancyGrid]]:
     section = Section(*SECTIONS[0])
     section.blocks.append(
         Para(
@@ -348,7 +312,7 @@ def maps_section(b: _Builder) -> tuple[Section, dict[str, OccupancyGrid]]:
     return section, grids
 
 
-def _map_views(b: _Builder, map_name: str, label: str, grid: OccupancyGrid) -> list:
+def _map_views(b: Builder, map_name: str, label: str, grid: OccupancyGrid) -> list:
     """The map with an example scan, and for map 1 the scan's three other views."""
     dataset = find_dataset(b.root, map_name)
     if dataset is None:
@@ -375,7 +339,7 @@ def _map_views(b: _Builder, map_name: str, label: str, grid: OccupancyGrid) -> l
     return blocks
 
 
-def _scan_views(b: _Builder, ranges: np.ndarray, angles: np.ndarray, laser: LaserSpec) -> list:
+def _scan_views(b: Builder, ranges: np.ndarray, angles: np.ndarray, laser: LaserSpec) -> list:
     image = figures.rasterize_scan(ranges, angles, RASTER_SIZE, RASTER_MAX_RANGE)
     return [
         b.figure(
@@ -399,7 +363,7 @@ def _scan_views(b: _Builder, ranges: np.ndarray, angles: np.ndarray, laser: Lase
     ]
 
 
-def table1_section(b: _Builder, runs: Mapping[str, Run]) -> Section:
+def table1_section(b: Builder, runs: Mapping[str, Run]) -> Section:
     section = Section(*SECTIONS[1])
     profile = b.context.get("profile", "?")
     present = [r for r in ROWS if r in runs]
@@ -495,7 +459,7 @@ def _run_table(runs: Mapping[str, Run], names: Mapping[str, str]) -> Table:
     return Table(header, rows)
 
 
-def curves_section(b: _Builder, runs: Mapping[str, Run]) -> Section:
+def curves_section(b: Builder, runs: Mapping[str, Run]) -> Section:
     section = Section(*SECTIONS[2])
     rows = {ROWS[r]: runs[r].history for r in ROWS if r in runs}
     if rows:
@@ -527,7 +491,7 @@ def curves_section(b: _Builder, runs: Mapping[str, Run]) -> Section:
 
 
 def localization_section(
-    b: _Builder, grid: OccupancyGrid, truth: np.ndarray, tables: Mapping[str, pd.DataFrame]
+    b: Builder, grid: OccupancyGrid, truth: np.ndarray, tables: Mapping[str, pd.DataFrame]
 ) -> Section:
     section = Section(*SECTIONS[3])
     absent = [m for m in METHOD_ORDER if m not in tables]
@@ -644,8 +608,8 @@ def claims_section(claims: list[Claim]) -> Section:
     return section
 
 
-def provenance_section(b: _Builder) -> Section:
-    section = Section(*SECTIONS[6])
+def provenance_section(b: Builder) -> Section:
+    section = Section(*SECTIONS[9])
     ctx = b.context
     commit = ctx.get("git_commit") or "not recorded"
     section.blocks.append(
@@ -675,80 +639,7 @@ def provenance_section(b: _Builder) -> Section:
     return section
 
 
-# ---------------------------------------------------------------- rendering
-
-
-def _png_size(data: bytes) -> tuple[int, int]:
-    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
-
-
-def _html_block(block: Para | Table | Figure | Pre, figure_dir: Path) -> str:
-    esc = html.escape
-    if isinstance(block, Para):
-        return f"<p>{esc(block.text)}</p>"
-    if isinstance(block, Pre):
-        summary, text = esc(block.summary), esc(block.text)
-        return f"<details><summary>{summary}</summary><pre>{text}</pre></details>"
-    if isinstance(block, Figure):
-        data = (figure_dir / block.file).read_bytes()
-        width, height = _png_size(data)
-        uri = "data:image/png;base64," + base64.b64encode(data).decode("ascii")
-        return (
-            f'<figure><img src="{uri}" alt="{esc(block.caption)}" width="{width}" '
-            f'height="{height}"><figcaption>{esc(block.caption)}</figcaption></figure>'
-        )
-    head = "".join(f"<th>{esc(h)}</th>" for h in block.header)
-    body = []
-    for i, row in enumerate(block.rows):
-        cls = f' class="{block.row_classes[i]}"' if block.row_classes else ""
-        body.append(f"<tr{cls}>" + "".join(f"<td>{esc(c)}</td>" for c in row) + "</tr>")
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
-
-
-def _md_cell(text: str) -> str:
-    return text.replace("|", "\\|").replace("\n", " ")
-
-
-def _md_block(block: Para | Table | Figure | Pre) -> str:
-    if isinstance(block, Para):
-        return block.text + "\n"
-    if isinstance(block, Pre):
-        return (
-            f"<details><summary>{block.summary}</summary>\n\n```yaml\n{block.text}```\n</details>\n"
-        )
-    if isinstance(block, Figure):
-        return f"![{_md_cell(block.caption)}](figures/{block.file})\n\n*{block.caption}*\n"
-    rows = [[_md_cell(c) for c in row] for row in block.rows]
-    return markdown_table([_md_cell(h) for h in block.header], rows)
-
-
 TITLE = "scanloc: reproducing “Deep Learning Localization” (Dietrich 2017)"
-
-
-def render_html(sections: list[Section], summary: str, figure_dir: Path) -> str:
-    nav = " ".join(f'<a href="#{s.id}">{html.escape(s.title)}</a>' for s in sections)
-    parts = [
-        "<!DOCTYPE html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        f'<meta http-equiv="Content-Security-Policy" content="{CSP}">',
-        '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        f"<title>{html.escape(TITLE)}</title><style>{CSS}</style></head>",
-        f"<body><main><h1>{html.escape(TITLE)}</h1><p>{html.escape(summary)}</p><nav>{nav}</nav>",
-    ]
-    for section in sections:
-        parts.append(f'<section><h2 id="{section.id}">{html.escape(section.title)}</h2>')
-        parts += [_html_block(block, figure_dir) for block in section.blocks]
-        parts.append("</section>")
-    parts.append("</main></body></html>")
-    return "\n".join(parts) + "\n"
-
-
-def render_markdown(sections: list[Section], summary: str) -> str:
-    parts = [f"# {TITLE}\n", summary + "\n"]
-    for section in sections:
-        parts.append(f'<h2 id="{section.id}">{section.title}</h2>\n')
-        parts += [_md_block(block) for block in section.blocks]
-    return "\n".join(parts)
 
 
 def _summary(claims: list[Claim], profile: str) -> str:
@@ -768,24 +659,29 @@ def build_report(
     out_dir: Path,
     context: Mapping[str, Any],
     claim_thresholds: Mapping[str, Mapping[str, Any]],
-) -> None:
+) -> dict[str, Any]:
     """Write <out_dir>/report.html (self-contained), <out_dir>/report.md and
-    <out_dir>/figures/*.png from the artifacts under `root`.
+    <out_dir>/figures/*.png from the artifacts under `root`; return the headline metrics
+    (summary.py).
 
-    context: {"profile": str, "params": dict (resolved config), "git_commit": str | None};
-    claim_thresholds: conf/report.yaml's `claims` (the verdict rules' numbers).
+    context: {"profile": str, "params": dict (resolved config), "git_commit": str | None,
+    "maps": [names of params.yaml `maps`], "real_logs": [names of its `real_logs`]};
+    claim_thresholds: conf/report.yaml's `claims`.
     """
+    from scanloc.report import beyond, real_data
+
     root, out_dir = Path(root), Path(out_dir)
-    b = _Builder(root, out_dir, context)
-    truth_path = _required(root / TRAJECTORY / "truth.npy", "true trajectory")
-    truth = np.load(truth_path)
-    if truth.ndim != 2 or truth.shape[1] != 3:
-        raise ValueError(f"{truth_path}: expected true poses of shape (T, 3), got {truth.shape}")
-    metrics = read_json(_required(root / METRICS_JSON, "localization metrics from evaluate"))
+    b = Builder(root, out_dir, context)
+    truth = load_truth(root, PAPER_RUN)
+    all_metrics = read_json(_required(root / METRICS_JSON, "localization metrics from evaluate"))
+    if PAPER_RUN not in all_metrics:
+        raise ValueError(f"{root / METRICS_JSON}: field '{PAPER_RUN}': missing (paper Table 2)")
+    metrics = all_metrics[PAPER_RUN]
     runs = load_runs(root)
-    tables = load_tables(root, len(truth))
+    tables = load_tables(root, PAPER_RUN, len(truth))
     maps, grids = maps_section(b)
     claims = check_claims(runs, metrics, claim_thresholds)
+    map_names = list(context.get("maps") or [MAP1])
     sections = [
         maps,
         table1_section(b, runs),
@@ -793,6 +689,10 @@ def build_report(
         localization_section(b, grids[MAP1], truth, tables),
         table2_section(metrics),
         claims_section(claims),
+        beyond.learned_section(b, map_names, all_metrics),
+        beyond.global_section(b, map_names, all_metrics),
+        real_data.real_data_section(b, list(context.get("real_logs") or []), all_metrics),
+        *[beyond.map_section(b, name, all_metrics) for name in map_names],
         provenance_section(b),
     ]
     summary = _summary(claims, str(context.get("profile", "?")))
@@ -800,6 +700,24 @@ def build_report(
         if stale.name not in b.written:
             stale.unlink()
     with atomic_path(out_dir / "report.md") as tmp:
-        tmp.write_text(render_markdown(sections, summary), encoding="utf-8")
+        tmp.write_text(render_markdown(sections, TITLE, summary), encoding="utf-8")
     with atomic_path(out_dir / "report.html") as tmp:
-        tmp.write_text(render_html(sections, summary, b.figure_dir), encoding="utf-8")
+        tmp.write_text(render_html(sections, TITLE, summary, b.figure_dir), encoding="utf-8")
+    table1 = {row: runs[row].val_mae for row in ROWS if row in runs}
+    return headline_metrics(
+        table1,
+        all_metrics,
+        map_names,
+        claims,
+        total_stage_seconds(root),
+        list(context.get("real_logs") or []),
+    )
+
+
+def total_stage_seconds(root: Path) -> float:
+    """The sum of the stages' wall times in reports/timing/ (the report's own excluded)."""
+    return sum(
+        float(read_json(path).get("wall_s", 0.0))
+        for path in sorted((root / TIMING_DIR).glob("*.json"))
+        if path.stem != "report"
+    )

@@ -232,12 +232,24 @@ def step_errors(truth: np.ndarray, table: pd.DataFrame) -> tuple[np.ndarray, np.
 
 
 def plot_errors_over_time(
-    truth: np.ndarray, tables: Mapping[str, pd.DataFrame], path: Path
+    truth: np.ndarray,
+    tables: Mapping[str, pd.DataFrame],
+    path: Path,
+    kidnap_times: tuple[float, ...] = (),
+    title: str = "",
 ) -> Path:
-    """Position and heading error of every localizer along the trajectory."""
+    """Position and heading error of every localizer along the trajectory; kidnaps (times in
+    seconds) as dashed vertical lines."""
     colours = colors_for(list(tables))
     fig = new_figure(10.0, 5.6)
     ax_pos, ax_head = fig.subplots(2, 1, sharex=True)
+    for ax in (ax_pos, ax_head):
+        for when in kidnap_times:
+            ax.axvline(when, color="black", ls="--", lw=0.9)
+    if kidnap_times:
+        ax_pos.text(kidnap_times[0], 1.05, " kidnap", transform=ax_pos.get_xaxis_transform())
+    if title:
+        ax_pos.set_title(title, fontsize=10)
     for name, table in tables.items():
         pos, heading = step_errors(truth, table)
         t = table["t"].to_numpy(dtype=np.float64) if "t" in table else np.arange(len(table))
@@ -310,3 +322,81 @@ def rasterize_scan(
         max_range=max_range,
     )
     return image[0, 0].numpy().astype(np.uint8)
+
+
+def plot_hypotheses(
+    grid: OccupancyGrid,
+    truth: np.ndarray,
+    scan_ranges: np.ndarray,
+    angles: np.ndarray,
+    range_max: float,
+    poses: np.ndarray,
+    weights: np.ndarray,
+    path: Path,
+    title: str,
+) -> Path:
+    """One scan (drawn from the true pose), the true pose and the learned localizer's ranked
+    hypotheses as arrows whose length grows with their weight, numbered by rank."""
+    fig = new_figure(8.0, 6.4)
+    ax = fig.subplots()
+    draw_map(ax, grid)
+    hit = scan_ranges <= range_max
+    world = truth[2] + angles[hit]
+    ax.plot(
+        truth[0] + scan_ranges[hit] * np.cos(world),
+        truth[1] + scan_ranges[hit] * np.sin(world),
+        ".",
+        color="#ff9896",
+        ms=2,
+        label="scan (from the true pose)",
+    )
+    top = max(float(weights.max()), 1e-12)
+    for rank, (pose, weight) in enumerate(zip(poses, weights, strict=True), start=1):
+        if weight <= 0:
+            continue
+        length = 0.3 + 0.9 * weight / top
+        ax.arrow(
+            pose[0],
+            pose[1],
+            length * np.cos(pose[2]),
+            length * np.sin(pose[2]),
+            width=0.05,
+            color=ESTIMATE_COLOR,
+            alpha=0.8,
+            length_includes_head=True,
+        )
+        ax.text(pose[0], pose[1], f" {rank}", fontsize=7, color=ESTIMATE_COLOR)
+    ax.arrow(
+        truth[0],
+        truth[1],
+        0.9 * np.cos(truth[2]),
+        0.9 * np.sin(truth[2]),
+        width=0.07,
+        color=TRUTH_COLOR,
+        length_includes_head=True,
+        label="truth",
+    )
+    ax.set_title(title, fontsize=10)
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_aspect("equal")
+    return save_png(fig, path)
+
+
+def plot_columns(
+    histories: Mapping[str, pd.DataFrame], columns: Mapping[str, str], path: Path
+) -> Path:
+    """One panel per history column (label: y axis), one line per run, against `epoch`."""
+    colours = colors_for(list(histories))
+    fig = new_figure(5.0 * len(columns), 3.6)
+    axes = np.atleast_1d(fig.subplots(1, len(columns)))
+    for ax, (column, label) in zip(axes, columns.items(), strict=True):
+        for name, history in histories.items():
+            if column in history:
+                ax.plot(
+                    history["epoch"], history[column], "o-", ms=3, color=colours[name], label=name
+                )
+        ax.set_xlabel("epoch")
+        ax.set_ylabel(label)
+        ax.grid(True, lw=0.3, alpha=0.5)
+    axes[0].legend(fontsize=8)
+    return save_png(fig, path)

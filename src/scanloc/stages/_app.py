@@ -1,8 +1,16 @@
-"""What every stage entry point shares: Hydra wiring, quiet logging, and per-stage wall time."""
+"""What every stage entry point shares: Hydra wiring, where outputs go, and per-stage wall time.
+
+Where outputs go: a stage's config lists the keys it writes (`outputs`). Under DVC (which sets
+DVC_STAGE for every stage command) they are the pipeline's tracked paths. A run by hand, or a
+job of a Hydra multirun, writes them under its own Hydra folder instead (runs/<stage>/<its
+overrides>/ or the multirun job's folder), so that it never overwrites what DVC tracks; an
+output key given on the command line is used as given.
+"""
 
 from __future__ import annotations
 
 import os
+import sys
 import time
 import warnings
 from collections.abc import Callable, Iterator
@@ -13,11 +21,9 @@ from typing import Any
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from scanloc.io import write_json
-
-TIMING_DIR = Path("reports/timing")
 
 # Lightning 2.6 on torch 2.13 warns about a torch-internal deprecation on every run; it is
 # not actionable here and would bury the stages' own messages.
@@ -33,12 +39,49 @@ def conf_dir() -> str:
 
 
 def stage_main(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:
-    """`hydra.main` over the repository's conf/ with `config_name` as the primary config."""
+    """`hydra.main` over the repository's conf/ with `config_name` as the primary config; the
+    outputs are redirected first (see the module docstring)."""
 
     def decorate(task: Callable[[DictConfig], Any]) -> Callable[[], Any]:
-        return hydra.main(version_base=None, config_path=conf_dir(), config_name=config_name)(task)
+        def run(cfg: DictConfig) -> Any:
+            redirect_outputs(cfg)
+            return task(cfg)
+
+        run.__name__, run.__module__ = task.__name__, task.__module__
+        main = hydra.main(version_base=None, config_path=conf_dir(), config_name=config_name)(run)
+
+        def named_main() -> Any:
+            # Hydra names the job after the file that defines the decorated function (this
+            # one, for every stage); the stage's config name is what its run folders need.
+            if not any(arg.startswith("hydra.job.name=") for arg in sys.argv[1:]):
+                sys.argv.append(f"hydra.job.name={config_name}")
+            return main()
+
+        return named_main
 
     return decorate
+
+
+def redirect_outputs(cfg: DictConfig) -> Path | None:
+    """Outside DVC, or in a multirun, prefix every `outputs` key not given on the command line
+    with the run's own Hydra folder; returns that folder (None: the pipeline's paths)."""
+    hydra_cfg = HydraConfig.get()
+    multirun = hydra_cfg.mode == RunMode.MULTIRUN
+    if os.environ.get("DVC_STAGE") and not multirun:
+        return None
+    folder = Path(os.path.relpath(hydra_cfg.runtime.output_dir))
+    given = {o.split("=", 1)[0].lstrip("+~") for o in hydra_cfg.overrides.task}
+    with open_dict(cfg):
+        for key in cfg.get("outputs", []):
+            if key not in given:
+                cfg[key] = str(folder / str(cfg[key]))
+    if not multirun and is_rank_zero():
+        print(
+            f"scanloc: not run by DVC, so this run writes into {folder}/ (the pipeline's "
+            "tracked outputs are left alone; `dvc repro` writes those)",
+            file=sys.stderr,
+        )
+    return folder
 
 
 def to_dict(node: DictConfig) -> dict[str, Any]:
@@ -55,25 +98,14 @@ def is_rank_zero() -> bool:
     return True
 
 
-def output_paths(cfg: DictConfig) -> tuple[Path, Path, Path]:
-    """(model folder, metrics file, timing folder) of a training stage: the configured ones
-    under DVC; in a Hydra multirun the job's own folder, so sweeps never overwrite the
-    pipeline's models and metrics."""
-    hydra_cfg = HydraConfig.get()
-    if hydra_cfg.mode == RunMode.MULTIRUN:
-        job_dir = Path(hydra_cfg.runtime.output_dir)
-        return job_dir / "model", job_dir / "metrics.json", job_dir
-    return Path(cfg.out_dir), Path(cfg.metrics_path), TIMING_DIR
-
-
 @contextmanager
-def timed_stage(name: str, folder: Path = TIMING_DIR) -> Iterator[None]:
-    """Record the stage's wall time in <folder>/<name>.json (under DVC: reports/timing/, a
-    cache-less metric); rank 0 only."""
+def timed_stage(name: str, folder: str | Path) -> Iterator[None]:
+    """Record the stage's wall time in <folder>/<name>.json (the config's timing_dir; under
+    DVC reports/timing/, a cache-less metric); rank 0 only."""
     start = time.perf_counter()
     yield
     if is_rank_zero():
         write_json(
-            folder / f"{name}.json",
+            Path(folder) / f"{name}.json",
             {"stage": name, "wall_s": round(time.perf_counter() - start, 3)},
         )

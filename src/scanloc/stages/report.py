@@ -9,6 +9,7 @@ from typing import Any
 import yaml
 from omegaconf import DictConfig
 
+from scanloc.io import write_json
 from scanloc.report.build import build_report
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 
@@ -40,14 +41,18 @@ def profile_params(profile: str) -> dict[str, Any]:
 
 @stage_main("report")
 def main(cfg: DictConfig) -> None:
-    with timed_stage("report"):
+    with timed_stage("report", cfg.timing_dir):
         profile = str(cfg.profile.name)
+        params = profile_params(profile)
         context = {
             "profile": profile,
-            "params": profile_params(profile),
+            "params": params,
             "git_commit": git_commit(),
+            "maps": list(params["params.yaml"].get("maps") or {}),
+            "real_logs": list(params["params.yaml"].get("real_logs") or {}),
         }
-        build_report(Path("."), Path(cfg.out_dir), context, to_dict(cfg.claims))
+        headline = build_report(Path("."), Path(cfg.out_dir), context, to_dict(cfg.claims))
+        write_json(Path(cfg.summary_path), headline)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ from scanloc.world.map_server import load_map
 @stage_main("scans")
 def main(cfg: DictConfig) -> None:
     dataset = cfg.dataset
-    with timed_stage(f"scans_{dataset.name}"):
+    with timed_stage(f"scans_{dataset.name}", cfg.timing_dir):
         generate_scan_dataset(
             cfg.out_dir,
             grid=load_map(cfg.map_yaml),

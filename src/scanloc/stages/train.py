@@ -1,7 +1,8 @@
 """`train` stage: train one Table 1 row, or the ensemble's further members, on a scan dataset.
 
-Under DVC each row writes to models/<row>/. In a Hydra multirun (a sweep outside DVC) every job
-writes to its own Hydra job folder instead, so sweeps never overwrite the pipeline's models.
+Under DVC each row writes to models/<row>/. A run by hand or a job of a Hydra multirun (a sweep)
+writes into its own Hydra folder instead (stages/_app.py), so it never overwrites the
+pipeline's models.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from scanloc.io import write_json
-from scanloc.stages._app import output_paths, stage_main, timed_stage, to_dict
+from scanloc.stages._app import stage_main, timed_stage, to_dict
 
 
 def run_config(cfg: DictConfig) -> dict[str, Any]:
@@ -75,9 +76,8 @@ def train(cfg: DictConfig, out_dir: Path, metrics_path: Path) -> dict[str, Any]:
 
 @stage_main("train")
 def main(cfg: DictConfig) -> float:
-    out_dir, metrics_path, timing_dir = output_paths(cfg)
-    with timed_stage(f"train_{cfg.experiment.name}", timing_dir):
-        metrics = train(cfg, out_dir, metrics_path)
+    with timed_stage(f"train_{cfg.experiment.name}", cfg.timing_dir):
+        metrics = train(cfg, Path(cfg.out_dir), Path(cfg.metrics_path))
     # The value a Hydra sweeper would minimise.
     return float(metrics.get("val_mae", float("nan")))
 

@@ -1,5 +1,5 @@
-"""`trajectory` stage (paper §4.4): drive a robot through map 1, record truth, odometry and a
-scan per step (same simulator and noise model as the training scans)."""
+"""`trajectory` stage (paper §4.4): drive a robot through a map (or kidnap it now and then),
+record truth, odometry and a scan per step (same simulator and noise as the training scans)."""
 
 from __future__ import annotations
 
@@ -15,18 +15,21 @@ from scanloc.world.map_server import load_map
 @stage_main("trajectory")
 def main(cfg: DictConfig) -> None:
     run = cfg.trajectory
-    with timed_stage("trajectory"):
+    num_steps = int(run.num_steps)
+    kidnaps = tuple(round(f * num_steps) for f in cfg.run.kidnap_at)
+    with timed_stage(f"trajectory_{cfg.name}", cfg.timing_dir):
         grid = load_map(cfg.map_yaml)
         spec = laser_spec_from_config(to_dict(cfg.sensor))
         traj = drive_trajectory(
             grid,
-            num_steps=int(run.num_steps),
+            num_steps=num_steps,
             rate_hz=float(run.rate_hz),
             seed=int(run.seed),
             clearance=float(run.clearance),
             max_speed=float(run.max_speed),
             max_turn_rate=float(run.max_turn_rate),
             odometry_noise=OdometryNoise(**to_dict(run.odometry_noise)),
+            kidnap_steps=kidnaps,
         )
         ranges = simulate_scans(
             grid,
@@ -39,7 +42,8 @@ def main(cfg: DictConfig) -> None:
         )
         meta = {
             "name": cfg.name,
-            "map": cfg.map,
+            "map": cfg.map_name,
+            "run": to_dict(cfg.run),
             "profile": cfg.profile.name,
             "trajectory": to_dict(run),
             "sensor": to_dict(cfg.sensor),

@@ -1,6 +1,6 @@
 """`transfer` stage (paper §4.3, Fig. 9): the 1D CNN learns map 2 from random weights
 (init=scratch) or from the weights it learnt on map 1 (init=pretrained); same data, epochs, seed.
-In a Hydra multirun every job writes into its own job folder, as the train stage's do."""
+A run by hand or a multirun job writes into its own Hydra folder, as the train stage's do."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from omegaconf import DictConfig
 
 from scanloc.io import write_json
 from scanloc.models.training import fit
-from scanloc.stages._app import output_paths, stage_main, timed_stage, to_dict
+from scanloc.stages._app import stage_main, timed_stage, to_dict
 
 INITS = ("scratch", "pretrained")
 
@@ -20,8 +20,8 @@ def main(cfg: DictConfig) -> None:
     if cfg.init not in INITS:
         raise ValueError(f"conf/transfer.yaml: init must be one of {INITS}, got {cfg.init!r}")
     run = cfg.transfer
-    out_dir, metrics_path, timing_dir = output_paths(cfg)
-    with timed_stage(f"transfer_{cfg.init}", timing_dir):
+    out_dir, metrics_path = Path(cfg.out_dir), Path(cfg.metrics_path)
+    with timed_stage(f"transfer_{cfg.init}", cfg.timing_dir):
         metrics = fit(
             model_cfg=to_dict(cfg.model.net),
             dataset_dir=Path(cfg.dataset_dir),

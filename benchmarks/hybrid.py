@@ -1,0 +1,130 @@
+"""Benchmark: one full hybrid update (scanloc.localize.hybrid) against plain amcl, same run.
+
+A hybrid update is everything the filter does for one scan: the learned localizer's network
+and top-K decoding for the scan, sampling the proposal's share of particles, the motion model,
+the balance-heuristic weights, the sensor model (nav2's likelihood_field_prob, the hybrid's),
+KLD resampling and the clusters. Plain amcl does the same update with the same sensor model and
+no proposal. Both at fixed particle counts (min = max) of 1k and 5k, updating and resampling
+on every scan, on map 1 (as benchmarks/amcl.py), 2 numba threads, medians over repeats after
+warm-up.
+
+The network is the pipeline's trained model for map 1 (models/scanlocnet/sparse_obstacles/
+model.pt, from `dvc repro train_scanlocnet@sparse_obstacles`) when it exists, else an untrained
+one of conf/scanlocnet.yaml's architecture. An untrained network decodes more slowly (its
+branch and bound prunes little), so its figures are a worst case; the JSON names which ran.
+
+Run: python benchmarks/hybrid.py [--quick] [--model PATH]. Last line: JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numba
+import numpy as np
+import torch
+import yaml
+
+from amcl import benchmark_drive, params_for  # benchmarks/amcl.py, beside this script
+from scanloc.localize.amcl import Amcl
+from scanloc.localize.hybrid import HybridAmcl, HybridParams, LearnedProposal
+from scanloc.localize.learned_localizer import scan_hypotheses
+from scanloc.localize.proposals import UniformProposal
+from scanloc.models.pose_grid import PoseGrid
+from scanloc.models.training import build_model
+from scanloc.sensor.laser import LaserSpec
+
+ROOT = Path(__file__).resolve().parents[1]
+PIPELINE_MODEL = ROOT / "models" / "scanlocnet" / "sparse_obstacles" / "model.pt"
+SIZES = (1000, 5000)
+MODEL = "likelihood_field_prob"
+
+
+def untrained_model(grid, spec: LaserSpec, path: Path) -> Path:
+    """conf/scanlocnet.yaml's network for `grid`, untrained, saved to `path`."""
+    from scanloc.models.training import save_model
+
+    conf = yaml.safe_load((ROOT / "conf" / "scanlocnet.yaml").read_text())
+    cell = conf["grid"]
+    pose_grid = PoseGrid.from_map(
+        grid, float(cell["cell_size"]), int(cell["heading_bins"]), float(cell["clearance"])
+    )
+    cfg = dict(conf["net"]) | {
+        "grid": pose_grid.to_dict(),
+        "num_beams": spec.num_beams,
+        "range_max": spec.range_max,
+    }
+    torch.manual_seed(0)
+    save_model(path, cfg, build_model(cfg).state_dict())
+    return path
+
+
+def median_update_s(filter_, odom, ranges, repeats: int, per_repeat: int) -> float:
+    filter_.update(odom[0], ranges[0])
+    for k in range(1, 4):  # warm-up
+        filter_.update(odom[k], ranges[k])
+    times, k = [], 4
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(per_repeat):
+            est = filter_.update(odom[k % len(odom)], ranges[k % len(odom)])
+            assert est.updated
+            k += 1
+        times.append((time.perf_counter() - start) / per_repeat)
+    return float(np.median(times))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="a fast smoke run")
+    parser.add_argument("--model", type=Path, default=PIPELINE_MODEL)
+    args = parser.parse_args()
+    repeats, per_repeat = (2, 2) if args.quick else (7, 15)
+    grid, map_name, spec, ranges, odom = benchmark_drive()
+    trained = args.model.is_file()
+    with tempfile.TemporaryDirectory() as tmp:
+        path = args.model if trained else untrained_model(grid, spec, Path(tmp) / "model.pt")
+        _, hypotheses_of, _ = scan_hypotheses(path, ranges)
+    net = []
+    for scan in ranges[:: max(1, len(ranges) // (10 if args.quick else 60))]:
+        tick = time.perf_counter()
+        hypotheses_of(scan)
+        net.append(time.perf_counter() - tick)
+    threads = numba.get_num_threads()
+    figures: dict[str, object] = {
+        "map": map_name,
+        "threads": threads,
+        "torch_threads": torch.get_num_threads(),
+        "model": str(args.model) if trained else "untrained",
+        "sensor_model": MODEL,
+        "network_ms_median": round(1e3 * float(np.median(net)), 2),
+        "quick": args.quick,
+    }
+    print(f"map: {map_name}; model: {figures['model']}; network {figures['network_ms_median']} ms")
+    for n in SIZES:
+        params = params_for(MODEL, n)
+        plain = Amcl(grid, spec, params, seed=0)
+        plain.initialize_pose(odom[0])
+        plain_s = median_update_s(plain, odom, ranges, repeats, per_repeat)
+        hybrid = HybridParams()
+        proposal = LearnedProposal(hypotheses_of, UniformProposal(grid), hybrid)
+        filter_ = HybridAmcl(grid, spec, params, proposal, hybrid, seed=0)
+        filter_.initialize_pose(odom[0])
+        hybrid_s = median_update_s(filter_, odom, ranges, repeats, per_repeat)
+        key = f"{n // 1000}k"
+        figures[f"amcl_hz_{key}"] = round(1.0 / plain_s, 1)
+        figures[f"hybrid_hz_{key}"] = round(1.0 / hybrid_s, 1)
+        figures[f"hybrid_cost_ratio_{key}"] = round(hybrid_s / plain_s, 2)
+        print(
+            f"{n:>5} particles: amcl {plain_s * 1e3:6.2f} ms ({1 / plain_s:6.1f} Hz), hybrid "
+            f"{hybrid_s * 1e3:6.2f} ms ({1 / hybrid_s:6.1f} Hz), {hybrid_s / plain_s:.2f}x"
+        )
+    print(json.dumps(figures))
+
+
+if __name__ == "__main__":
+    main()

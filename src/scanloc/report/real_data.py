@@ -1,0 +1,141 @@
+"""The report's "Real data" section: every localizer on a real laser log and on its simulated
+twin (the same poses and odometry, scans simulated in the map built from the log), side by
+side, so that the sim-to-real gap is one subtraction (stages/real.py makes both runs)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from typing import Any
+
+from scanloc.localize.trajectory import load_trajectory
+from scanloc.report import figures
+from scanloc.report.beyond import converge_text, estimate_tables, fmt_value
+from scanloc.report.build import SECTIONS, TRAJECTORIES
+from scanloc.report.document import Builder, Para, Section, Table
+from scanloc.world.map_server import load_map
+
+REAL_METHODS = (
+    "amcl",
+    "amcl_global",
+    "amcl_recovery",
+    "scanlocnet",
+    "scanlocnet_track",
+    "hybrid",
+)
+# (metric, column title, digits or "%"), shown for the simulated and the real run
+COMPARED = (
+    ("pos_err_mean_m", "pos. mean [m]", 3),
+    ("pos_err_rmse_m", "pos. RMSE [m]", 3),
+    ("heading_err_mean_deg", "heading mean [°]", 2),
+    ("frac_gross_over_1m", "lost > 1 m", "%"),
+)
+
+
+def _cell(metrics: Mapping[str, Any] | None, key: str, digits: int | str) -> str:
+    if not metrics:
+        return "–"
+    if digits == "%":
+        return fmt_value(metrics.get(key), percent=True)
+    return fmt_value(metrics.get(key), int(digits))
+
+
+def _gap_sentence(log: str, sim: Mapping[str, Any], real: Mapping[str, Any]) -> str:
+    """The gap in plain words, from the numbers (tracking amcl and the learned model)."""
+    parts = []
+    amcl_sim, amcl_real = sim.get("amcl", {}), real.get("amcl", {})
+    if amcl_sim.get("pos_err_rmse_m") is not None and amcl_real.get("pos_err_rmse_m") is not None:
+        parts.append(
+            f"tracking amcl's position RMSE is {amcl_real['pos_err_rmse_m']:.3f} m on the real "
+            f"scans against {amcl_sim['pos_err_rmse_m']:.3f} m on the simulated ones"
+        )
+    learned_sim, learned_real = sim.get("scanlocnet", {}), real.get("scanlocnet", {})
+    if learned_sim.get("top5_recall") is not None and learned_real.get("top5_recall") is not None:
+        parts.append(
+            f"the learned localizer, trained on simulated scans only, has the truth among its 5 "
+            f"best hypotheses on {100 * learned_real['top5_recall']:.1f} % of the real scans "
+            f"against {100 * learned_sim['top5_recall']:.1f} % of the simulated ones, and its "
+            f"best hypothesis is more than 1 m off on "
+            f"{fmt_value(learned_real.get('frac_gross_over_1m'), percent=True)} (real) against "
+            f"{fmt_value(learned_sim.get('frac_gross_over_1m'), percent=True)} (simulated)"
+        )
+    if not parts:
+        return f"{log}: no metrics to compare."
+    return f"{log}: " + "; ".join(parts) + "."
+
+
+def real_data_section(b: Builder, logs: list[str], all_metrics: Mapping[str, Any]) -> Section:
+    section = Section(*SECTIONS[8])
+    section.blocks.append(
+        Para(
+            "Beyond the paper: real laser logs with corrected poses (CARMEN format, "
+            "params.yaml `real_logs`). Each log gives a map built from its own scans (log-odds "
+            "occupancy mapping along the corrected poses), a real run (its scans and its wheel "
+            "odometry, rebuilt from the log) and a simulated twin: the same poses and odometry, "
+            "with scans simulated in the built map with the log's own sensor and a SICK-like "
+            "noise model. The learned localizer is trained on simulated scans in the built map "
+            "only. Truth is the log's corrected pose (a scan matcher's, itself accurate to a few "
+            "centimetres), and the map is built from the very scans that are localized, as is "
+            "usual for these logs. Every localizer runs on both runs; real minus simulated is "
+            "the sim-to-real gap."
+        )
+    )
+    if not logs:
+        section.blocks.append(Para("No real logs in params.yaml `real_logs`."))
+        return section
+    for log in logs:
+        sim = all_metrics.get(f"{log}_sim") or {}
+        real = all_metrics.get(f"{log}_real") or {}
+        real_dir = b.root / TRAJECTORIES / f"{log}_real"
+        map_yaml = b.root / "data" / "maps" / log / "map.yaml"
+        if not real or not (real_dir / "truth.npy").is_file() or not map_yaml.is_file():
+            section.blocks.append(Para(f"{log}: not evaluated (no real run or metrics)."))
+            continue
+        grid = load_map(map_yaml)
+        traj, _ = load_trajectory(real_dir)
+        meta = json.loads((real_dir / "meta.json").read_text())
+        width, height = grid.size_m
+        path_m = float(sum(((traj.truth[1:, :2] - traj.truth[:-1, :2]) ** 2).sum(axis=1) ** 0.5))
+        section.blocks.append(
+            Para(
+                f"{log} ({meta.get('log', '?')}): {len(traj.times)} scans of "
+                f"{meta.get('sensor', {}).get('num_beams', '?')} beams over "
+                f"{traj.times[-1]:.0f} s and {path_m:.0f} m of driving; built map "
+                f"{width:.1f} × {height:.1f} m at {grid.resolution:g} m."
+            )
+        )
+        tables = estimate_tables(b.root, f"{log}_real", ("amcl", "scanlocnet", "hybrid"))
+        if tables:
+            section.blocks.append(
+                b.figure(
+                    f"real_{log}.png",
+                    f"{log}, real scans: position estimates (red) against the corrected poses "
+                    "(blue) on the map built from the log.",
+                    lambda p, grid=grid, traj=traj, tables=tables: figures.plot_trajectories(
+                        grid, traj.truth, tables, p
+                    ),
+                )
+            )
+        header = ["localizer"]
+        for _, title, _ in COMPARED:
+            header += [f"{title} sim", f"{title} real"]
+        header += ["steps to converge sim", "steps to converge real", "top-5 recall sim / real"]
+        rows = []
+        for method in REAL_METHODS:
+            s, r = sim.get(method), real.get(method)
+            if s is None and r is None:
+                continue
+            row = [method]
+            for key, _, digits in COMPARED:
+                row += [_cell(s, key, digits), _cell(r, key, digits)]
+            row += [converge_text(s or {}), converge_text(r or {})]
+            recall = (s or {}).get("top5_recall"), (r or {}).get("top5_recall")
+            row.append(
+                "–"
+                if None in recall
+                else f"{fmt_value(recall[0], percent=True)} / {fmt_value(recall[1], percent=True)}"
+            )
+            rows.append(row)
+        section.blocks.append(Table(header, rows))
+        section.blocks.append(Para(_gap_sentence(log, sim, real)))
+    return section

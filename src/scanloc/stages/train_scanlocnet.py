@@ -1,0 +1,53 @@
+"""`train_scanlocnet` stage (beyond the paper): the learned localizer with ranked hypotheses for
+one map, trained on scans simulated afresh every epoch (scanloc.models.scanlocnet_training)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from scanloc.data.scan_stream import StreamSpec
+from scanloc.io import write_json
+from scanloc.models.pose_grid import PoseGrid
+from scanloc.models.scanlocnet_training import fit_scanlocnet
+from scanloc.stages._app import stage_main, timed_stage, to_dict
+from scanloc.world.map_server import load_map
+
+
+@stage_main("scanlocnet")
+def main(cfg: DictConfig) -> None:
+    run = cfg.training
+    with timed_stage(f"train_scanlocnet_{cfg.map_name}", cfg.timing_dir):
+        grid = PoseGrid.from_map(
+            load_map(cfg.map_yaml),
+            float(cfg.grid.cell_size),
+            int(cfg.grid.heading_bins),
+            float(cfg.grid.clearance),
+        )
+        stream = StreamSpec(
+            map_yaml=str(cfg.map_yaml),
+            sensor=to_dict(cfg.sensor),
+            noise=to_dict(cfg.noise),
+            clearance=float(cfg.grid.clearance),
+            scans_per_epoch=int(run.scans_per_epoch),
+            seed=int(run.seed),
+        )
+        metrics = fit_scanlocnet(
+            model_cfg=to_dict(cfg.net),
+            grid=grid,
+            stream=stream,
+            val_dataset=Path(cfg.val_dataset),
+            out_dir=Path(cfg.out_dir),
+            epochs=int(run.epochs),
+            batch_size=int(run.batch_size),
+            lr=float(run.lr),
+            weight_decay=float(run.weight_decay),
+            pct_start=float(run.pct_start),
+            trainer_cfg=to_dict(cfg.trainer),
+        )
+        write_json(Path(cfg.metrics_path), metrics | {"map": cfg.map_name})
+
+
+if __name__ == "__main__":
+    main()

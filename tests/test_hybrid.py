@@ -1,0 +1,197 @@
+"""The hybrid localizer (amcl with the learned proposal): the proposal's density, the importance
+weights of proposed particles against a brute-force computation, and its behaviour with a
+perfect and with a useless proposal, beside amcl with the uniform one."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import stats
+
+from scanloc.evaluate.metrics import convergence_metrics
+from scanloc.localize.amcl import Amcl, AmclParams, run_filter
+from scanloc.localize.clustering import particle_bins
+from scanloc.localize.estimates import wrap_angle
+from scanloc.localize.hybrid import BIN_VOLUME, HybridAmcl, HybridParams, LearnedProposal
+from scanloc.localize.hybrid import _mixture_density as mixture_density
+from scanloc.localize.proposals import UniformProposal
+from scanloc.localize.trajectory import drive_trajectory
+from scanloc.models.scanlocnet import Hypotheses
+from test_amcl import SPEC, small_map, ug01_scans
+
+GRID = small_map()
+LF_PROB = AmclParams(laser_model_type="likelihood_field_prob")
+
+
+def hypotheses_from(poses_of: Callable[[np.ndarray], np.ndarray], std: float) -> Callable:
+    """A stand-in for the network: the hypotheses `poses_of(scan)` (K, 3), equal weights."""
+
+    def hypotheses_of(scan: np.ndarray) -> Hypotheses:
+        poses = np.atleast_2d(poses_of(scan))
+        k = len(poses)
+        return Hypotheses(
+            poses[None], np.full((1, k), 1.0 / k), np.full((1, k, 3), [std, std, std / 2])
+        )
+
+    return hypotheses_of
+
+
+def proposal_at(poses: np.ndarray, params: HybridParams, std: float = 0.2) -> LearnedProposal:
+    proposal = LearnedProposal(hypotheses_from(lambda _: poses, std), UniformProposal(GRID), params)
+    proposal.observe(np.zeros(SPEC.num_beams, dtype=np.float32))
+    return proposal
+
+
+def brute_mixture(poses, means, stds, weights) -> np.ndarray:
+    """Σ_k w_k Π_axis N(axis; μ, σ) with the heading difference wrapped, by scipy."""
+    out = np.zeros(len(poses))
+    for mean, std, w in zip(means, stds, weights, strict=True):
+        dt = np.angle(np.exp(1j * (poses[:, 2] - mean[2])))
+        out += (
+            w
+            * stats.norm.pdf(poses[:, 0], mean[0], std[0])
+            * stats.norm.pdf(poses[:, 1], mean[1], std[1])
+            * stats.norm.pdf(dt, 0.0, std[2])
+        )
+    return out
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), k=st.integers(1, 6))
+def test_mixture_density_equals_a_brute_force_sum(seed: int, k: int) -> None:
+    rng = np.random.default_rng(seed)
+    means = np.column_stack([rng.uniform(0, 6, k), rng.uniform(0, 5, k), rng.uniform(-3, 3, k)])
+    stds = rng.uniform(0.05, 0.5, (k, 3))
+    weights = rng.dirichlet(np.ones(k))
+    poses = means[rng.integers(0, k, 200)] + rng.normal(0, 0.4, (200, 3))
+    poses[:, 2] = wrap_angle(poses[:, 2])
+    fast = mixture_density(poses, means, stds, weights)
+    slow = brute_mixture(poses, means, stds, weights)
+    np.testing.assert_allclose(fast, slow, rtol=1e-9, atol=1e-9 * slow.max())
+
+
+def test_proposal_density_is_normalised_over_the_map() -> None:
+    """E_q[u(x) / q(x)] = ∫ u = 1 when q covers the free space (the uniform share does): the
+    sampler and the density describe the same, normalised distribution."""
+    params = HybridParams(uniform_share=0.1)
+    proposal = proposal_at(np.array([[1.0, 1.0, 0.5], [4.8, 3.9, -3.1], [3.0, 4.5, 3.1]]), params)
+    rng = np.random.default_rng(0)
+    poses = proposal.sample(200_000, rng)
+    ratio = proposal.uniform.density(poses) / proposal.density(poses)
+    assert ratio.mean() == pytest.approx(1.0, rel=0.03)
+    assert proposal.inferences == 1  # one network run per observed scan, however often used
+
+
+def test_proposed_particles_get_the_balance_heuristic_weights(monkeypatch) -> None:
+    """After a sensor update's mixture step, every weight equals p_prior(x) / m(x) with
+    p_prior = (1 - ε) bel_motion + ε u and m = (1 - φ) bel_motion + φ q, bel_motion being
+    the current particles' weight per KLD bin: recomputed here particle by particle."""
+    traj = drive_trajectory(GRID, 30, seed=1, clearance=0.25)
+    ranges = ug01_scans(GRID, traj.truth, seed=2)
+    hybrid = HybridParams(mixture_share=0.2, kidnap_probability=0.05)
+    proposal = proposal_at(traj.truth[:1] + np.array([0.3, -0.2, 0.1]), hybrid)
+    amcl = HybridAmcl(GRID, SPEC, LF_PROB, proposal, hybrid, seed=0)
+    amcl.initialize_pose(traj.truth[0])
+    amcl.update(traj.odometry[0], ranges[0])
+    amcl.update(traj.odometry[0], ranges[0])  # resampled once: the mixture step is active
+    before_poses, before_weights = amcl.poses.copy(), amcl.weights.copy()
+    seen = {}
+
+    def record(self, scan) -> None:
+        seen["poses"], seen["weights"] = self.poses.copy(), self.weights.copy()
+
+    monkeypatch.setattr(Amcl, "sensor_update", record)
+    amcl.sensor_update(ranges[1])
+    poses, weights = seen["poses"], seen["weights"]
+    n = len(before_poses)
+    assert len(poses) == n + round(0.2 * n)
+    np.testing.assert_array_equal(poses[:n], before_poses)
+    bins_before = particle_bins(before_poses, amcl._dims)
+    bins_all = particle_bins(poses, amcl._dims)
+    u = UniformProposal(GRID).uniform_density
+    expected = np.empty(len(poses))
+    for i, pose in enumerate(poses):
+        bel = before_weights[bins_before == bins_all[i]].sum() / BIN_VOLUME
+        q = 0.9 * brute_mixture(pose[None], proposal.means, proposal.stds, proposal.weights)[0]
+        free = proposal.uniform.density(pose[None])[0] > 0
+        q += 0.1 * (u if free else 0.0)
+        prior = 0.95 * bel + 0.05 * (u if free else 0.0)
+        expected[i] = prior / (0.8 * bel + 0.2 * q)
+    np.testing.assert_allclose(weights, expected / expected.sum(), rtol=1e-9)
+
+
+def test_injected_and_initial_particles_are_weighted_u_over_q() -> None:
+    hybrid = HybridParams()
+    proposal = proposal_at(np.array([[2.0, 2.0, 0.0]]), hybrid)
+    amcl = HybridAmcl(GRID, SPEC, LF_PROB, proposal, hybrid, seed=0)
+    poses, weights = amcl.injection(500)
+    u = proposal.uniform.density(poses)
+    q = 0.9 * brute_mixture(poses, proposal.means, proposal.stds, proposal.weights) + 0.1 * u
+    np.testing.assert_allclose(weights, u / q, rtol=1e-6)  # the density drops terms < e⁻²⁵
+
+
+@pytest.fixture(scope="module")
+def drive() -> tuple:
+    traj = drive_trajectory(GRID, 260, seed=3, clearance=0.25, kidnap_steps=(180,))
+    return traj, ug01_scans(GRID, traj.truth, seed=4)
+
+
+def truth_of_scan(traj, ranges, noise: float) -> Callable[[np.ndarray], np.ndarray]:
+    """The true pose of a scan, plus noise: a perfect learned localizer."""
+    rng = np.random.default_rng(5)
+    by_scan = {r.tobytes(): p for r, p in zip(ranges, traj.truth, strict=True)}
+    return lambda scan: by_scan[np.asarray(scan).tobytes()] + rng.normal(0, noise, 3)
+
+
+def run_hybrid(traj, ranges, poses_of, params: AmclParams = LF_PROB, seed: int = 0):
+    hybrid = HybridParams()
+    proposal = LearnedProposal(hypotheses_from(poses_of, 0.1), UniformProposal(GRID), hybrid)
+    amcl = HybridAmcl(GRID, SPEC, params, proposal, hybrid, seed=seed)
+    return run_filter(amcl, traj, ranges, "global").table
+
+
+def test_a_perfect_proposal_localizes_on_the_first_update_and_after_a_kidnap(drive) -> None:
+    traj, ranges = drive
+    table = run_hybrid(traj, ranges, truth_of_scan(traj, ranges, 0.05))
+    m = convergence_metrics(traj.truth, table, traj.kidnap_steps)
+    assert m["steps_to_converge"] == 0 and m["converged"] == 1
+    assert m["recovered"] == 1 and m["recovery_steps_1"] <= 5
+    err = np.hypot(table.x - traj.truth[:, 0], table.y - traj.truth[:, 1])
+    assert err.iloc[0] < 0.2
+
+
+def test_a_useless_proposal_is_no_worse_than_the_uniform_one(drive) -> None:
+    """Hypotheses always in the same wrong corner: the defensive uniform share and the u/q
+    weights leave the filter as good as amcl's global localization with uniform particles."""
+    traj, ranges = drive
+    far = np.array([5.5, 4.5, 0.0])
+    assert np.hypot(*(traj.truth[:180, :2] - far[:2]).T).min() > 0.5
+    uniform = []
+    useless = []
+    for seed in (0, 1):
+        amcl = Amcl(GRID, SPEC, LF_PROB, seed=seed)
+        table = run_filter(amcl, traj, ranges, "global").table
+        uniform.append(convergence_metrics(traj.truth[:180], table.iloc[:180]))
+        table = run_hybrid(traj, ranges, lambda _: far, seed=seed)
+        useless.append(convergence_metrics(traj.truth[:180], table.iloc[:180]))
+    for u, h in zip(uniform, useless, strict=True):
+        assert u["converged"] == 1 and h["converged"] == 1
+        assert h["steps_to_converge"] <= u["steps_to_converge"] + 20
+        assert h["tracking_pos_err_mean_m"] <= 1.5 * u["tracking_pos_err_mean_m"] + 0.02
+
+
+def test_bad_parameters_are_rejected() -> None:
+    with pytest.raises(ValueError, match="uniform_share"):
+        HybridParams(uniform_share=1.0)
+    with pytest.raises(ValueError, match="k >= 1"):
+        HybridParams(k=0)
+    with pytest.raises(RuntimeError, match="observe"):
+        LearnedProposal(
+            hypotheses_from(lambda _: np.zeros(3), 0.1), UniformProposal(GRID), HybridParams()
+        ).sample(3, np.random.default_rng(0))
+    assert math.isfinite(HybridParams().kidnap_probability)
