@@ -3,8 +3,11 @@ with two generated maps added to params.yaml's `maps` beside the paper's (a user
 
 from __future__ import annotations
 
+import base64
+import io
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -12,6 +15,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from PIL import Image
 
 from scanloc.report.build import SECTIONS
 
@@ -204,3 +208,44 @@ def test_scans_are_byte_reproducible_from_scratch(smoke_repo: Path, tmp_path: Pa
     prefixes = ("maps@", "scans@")
     first, second = lock_outs(smoke_repo, prefixes), lock_outs(again, prefixes)
     assert first and first == second
+
+
+def test_two_experiments_compare_in_one_narrow_table(smoke_repo: Path) -> None:
+    """Two DVC experiments on the smoke pipeline (last in this module: they change the
+    workspace), compared by the README's command: one table of at most 120 columns, and the
+    page, read from the experiments' DVC artifacts. The changed parameter is a claim tolerance,
+    so that only the report stage re-runs."""
+    env = dict(os.environ, GIT_AUTHOR_NAME="t", GIT_AUTHOR_EMAIL="t@t", GIT_COMMITTER_NAME="t")
+    env["GIT_COMMITTER_EMAIL"] = "t@t"
+    for args in (["add", "-A"], ["commit", "-qm", "smoke"]):
+        subprocess.run(["git", *args], cwd=smoke_repo, env=env, check=True)
+    knob = "conf/report.yaml:claims.claim7.delta_tolerance_m"
+    for name, value in (("tol-low", 0.01), ("tol-high", 5.0)):
+        dvc(smoke_repo, "exp", "run", "-q", "-n", name, "-S", f"{knob}={value}")
+    result = subprocess.run(
+        [sys.executable, "-m", "scanloc.stages.compare", "experiments=[tol-low,tol-high]"],
+        cwd=smoke_repo,
+        env={k: v for k, v in env.items() if k not in ("DVC_STAGE", "SCANLOC_CONF")},
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert max(map(len, lines)) <= 120, max(lines, key=len)
+    header = next(line for line in lines if line.startswith("metric "))
+    assert "tol-low" in header and "tol-high" in header
+    assert any(line.startswith("claims.claim7.delta_tolerance_m") or knob in line for line in lines)
+    assert any(line.startswith("pos_amcl ") for line in lines)
+    page = re.search(r"compare: wrote (\S+)compare\.html", result.stdout)
+    assert page, result.stdout
+    folder = smoke_repo / page.group(1)
+    html = (folder / "compare.html").read_text()
+    assert (folder / "compare.md").is_file()
+    for section in ("params", "metrics", "curves", "errors"):
+        assert f'id="{section}"' in html, section
+    images = re.findall(r'src="data:image/png;base64,([^"]+)"', html)
+    assert len(images) >= 2
+    for data in images:
+        Image.open(io.BytesIO(base64.b64decode(data))).verify()
+    assert "http://" not in html and "https://" not in html

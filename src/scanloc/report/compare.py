@@ -41,8 +41,8 @@ from scanloc.sweep_summary import job_folders, parse_overrides
 SUMMARY_JSON = "reports/summary.json"
 BEST_MARK = "★"
 # Which way is better, by headline key prefix (summary.py); claims_* counts are not marked.
-LOWER_IS_BETTER = ("pos_", "lost_", "conv_", "rec_", "t1_")
-HIGHER_IS_BETTER = ("top5_",)
+LOWER_IS_BETTER = ("pos_", "lost_", "conv_", "rec_", "t1_", "real_rmse_")
+HIGHER_IS_BETTER = ("top5_", "real_top5_")
 HISTORY_COLUMNS = ("epoch", "train_mae", "val_mae")
 MISSING = "—"
 

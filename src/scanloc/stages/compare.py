@@ -1,5 +1,7 @@
 """`compare`: the offline comparison page of two or more DVC experiments or of the jobs of a
-Hydra multirun (scanloc.report.compare); not a DVC stage, it only reads what runs left."""
+Hydra multirun (scanloc.report.compare); not a DVC stage, it only reads what runs left. It also
+prints the changed parameters and the headline metrics as plain tables, one row per parameter
+or metric and one column per run, so that they fit a terminal (README, "Experiments")."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from scanloc.report.compare import Run, experiment_runs, multirun_runs, write_compare
+from scanloc.report.document import Table
 from scanloc.stages._app import stage_main
 
 
@@ -28,11 +31,25 @@ def load_runs(cfg: DictConfig) -> tuple[list[Run], str]:
     return experiment_runs(experiments, repo), f"DVC experiments of {repo.resolve().name}"
 
 
+def text_table(table: Table) -> str:
+    """A table as aligned plain-text columns (no borders: narrow terminals)."""
+    rows = [table.header, *table.rows]
+    widths = [max(len(row[i]) for row in rows) for i in range(len(table.header))]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)) for row in rows]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(line.rstrip() for line in lines)
+
+
 @stage_main("compare")
 def main(cfg: DictConfig) -> None:
     runs, source = load_runs(cfg)
     out_dir = Path(cfg.out_dir)
-    write_compare(runs, out_dir, source, str(cfg.trajectory), [str(n) for n in cfg.localizers])
+    sections = write_compare(
+        runs, out_dir, source, str(cfg.trajectory), [str(n) for n in cfg.localizers]
+    )
+    for section in sections[:2]:  # the parameter differences and the headline metrics
+        tables = [block for block in section.blocks if isinstance(block, Table)]
+        print(f"{section.title}:", *(text_table(t) for t in tables) or ["(none)"], sep="\n")
     print(f"compare: wrote {out_dir / 'compare.html'} and {out_dir / 'compare.md'}")
 
 
