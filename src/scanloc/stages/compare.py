@@ -50,7 +50,8 @@ def main(cfg: DictConfig) -> None:
     for section in sections[:2]:  # the parameter differences and the headline metrics
         tables = [block for block in section.blocks if isinstance(block, Table)]
         print(f"{section.title}:", *(text_table(t) for t in tables) or ["(none)"], sep="\n")
-    print(f"compare: wrote {out_dir / 'compare.html'} and {out_dir / 'compare.md'}")
+    for name in ("compare.html", "compare.md"):
+        print(f"compare: wrote {out_dir / name}")
 
 
 if __name__ == "__main__":
