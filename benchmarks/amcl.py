@@ -72,22 +72,31 @@ def params_for(model: str, n: int) -> AmclParams:
     )
 
 
-def time_filter(grid, spec, odom, ranges, model: str, n: int, repeats: int, per_repeat: int):
-    """Median seconds per update of the compiled filter."""
-    amcl = Amcl(grid, spec, params_for(model, n), seed=0)
-    amcl.initialize_pose(odom[0])
-    amcl.update(odom[0], ranges[0])
-    for k in range(1, 4):  # warm-up (compiled code is cached, but let caches settle)
-        amcl.update(odom[k], ranges[k])
+def median_update_s(
+    filter_, odom, ranges, repeats: int, per_repeat: int, n_particles: int | None = None
+) -> float:
+    """Median seconds per update of an initialised filter (amcl or the hybrid), after a first
+    update and 3 of warm-up (compiled code is cached, but let caches settle); every timed
+    update must be a filter update, with `n_particles` particles where given."""
+    filter_.update(odom[0], ranges[0])
+    for k in range(1, 4):
+        filter_.update(odom[k], ranges[k])
     times, k = [], 4
     for _ in range(repeats):
         start = time.perf_counter()
         for _ in range(per_repeat):
-            est = amcl.update(odom[k % len(odom)], ranges[k % len(odom)])
-            assert est.updated and est.n_particles == n
+            est = filter_.update(odom[k % len(odom)], ranges[k % len(odom)])
+            assert est.updated and n_particles in (None, est.n_particles)
             k += 1
         times.append((time.perf_counter() - start) / per_repeat)
     return float(np.median(times))
+
+
+def time_filter(grid, spec, odom, ranges, model: str, n: int, repeats: int, per_repeat: int):
+    """Median seconds per update of the compiled filter with `n` particles (KLD off)."""
+    amcl = Amcl(grid, spec, params_for(model, n), seed=0)
+    amcl.initialize_pose(odom[0])
+    return median_update_s(amcl, odom, ranges, repeats, per_repeat, n_particles=n)
 
 
 class Reference:

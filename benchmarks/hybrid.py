@@ -29,7 +29,11 @@ import numpy as np
 import torch
 import yaml
 
-from amcl import benchmark_drive, params_for  # benchmarks/amcl.py, beside this script
+from amcl import (  # benchmarks/amcl.py, beside this script
+    benchmark_drive,
+    median_update_s,
+    params_for,
+)
 from scanloc.localize.amcl import Amcl
 from scanloc.localize.hybrid import HybridAmcl, HybridParams, LearnedProposal
 from scanloc.localize.learned_localizer import scan_hypotheses
@@ -61,21 +65,6 @@ def untrained_model(grid, spec: LaserSpec, path: Path) -> Path:
     torch.manual_seed(0)
     save_model(path, cfg, build_model(cfg).state_dict())
     return path
-
-
-def median_update_s(filter_, odom, ranges, repeats: int, per_repeat: int) -> float:
-    filter_.update(odom[0], ranges[0])
-    for k in range(1, 4):  # warm-up
-        filter_.update(odom[k], ranges[k])
-    times, k = [], 4
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(per_repeat):
-            est = filter_.update(odom[k % len(odom)], ranges[k % len(odom)])
-            assert est.updated
-            k += 1
-        times.append((time.perf_counter() - start) / per_repeat)
-    return float(np.median(times))
 
 
 def main() -> None:
