@@ -34,9 +34,9 @@ from scanloc.localize.clustering import BIN_THETA, BIN_XY
 from scanloc.localize.likelihood_field import distance_map, select_beams
 from scanloc.localize.likelihood_field_prob import select_beams_prob
 from scanloc.localize.motion_model import decompose, noise_sigmas
-from scanloc.localize.trajectory import drive_trajectory
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.raycast import CastMap, cast_exact
+from scanloc.trajectory.drive import drive_trajectory
 from scanloc.world.occupancy_grid import OCCUPIED, OccupancyGrid
 
 STDR_MAP = Path(__file__).resolve().parents[2] / "shared" / "data" / "stdr_maps"

@@ -28,9 +28,10 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from scanloc.localize.amcl import Amcl, AmclParams
-from scanloc.localize.trajectory import OdometryNoise, drive_trajectory
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
+from scanloc.trajectory.drive import drive_trajectory
+from scanloc.trajectory.odometry import OdometryNoise
 from scanloc.world.build import build_map
 
 CONF = Path(__file__).resolve().parents[1] / "conf"

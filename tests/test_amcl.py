@@ -11,13 +11,15 @@ import pandas as pd
 import pytest
 import yaml
 
-from scanloc.localize.amcl import Amcl, AmclParams, compose, inverse, run_amcl
+from scanloc.estimates import TABLE_COLUMNS
+from scanloc.localize.amcl import Amcl, AmclParams, run_amcl
 from scanloc.localize.clustering import cluster_estimate
-from scanloc.localize.estimates import TABLE_COLUMNS
 from scanloc.localize.kld_resampling import kld_limit
-from scanloc.localize.trajectory import Trajectory, drive_trajectory
+from scanloc.pose import compose, inverse
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.raycast import CastMap, cast_exact
+from scanloc.trajectory.drive import drive_trajectory
+from scanloc.trajectory.format import Trajectory
 from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import OCCUPIED, UNKNOWN, OccupancyGrid
 

@@ -13,11 +13,11 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scanloc.localize.amcl import Amcl, AmclParams, compose, inverse, run_amcl
-from scanloc.localize.estimates import wrap_angle, wrap_pi
+from scanloc.localize.amcl import Amcl, AmclParams, run_amcl
 from scanloc.localize.kld_resampling import _pick_indices
-from scanloc.localize.trajectory import drive_trajectory
+from scanloc.pose import compose, inverse, wrap_angle, wrap_pi
 from scanloc.sensor.laser import LaserSpec
+from scanloc.trajectory.drive import drive_trajectory
 from test_amcl import small_map, ug01_scans
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "localizer"

@@ -11,9 +11,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from scanloc.estimates import TABLE_COLUMNS
 from scanloc.localize import cnn_localizer
 from scanloc.localize.cnn_localizer import ensemble_mean_and_cov, localize_cnn
-from scanloc.localize.estimates import TABLE_COLUMNS, wrap_angle
+from scanloc.pose import wrap_angle
 
 
 def test_circular_mean_across_pi() -> None:

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import yaml
 
-from scanloc.localize.estimates import TABLE_COLUMNS, table_covariances, table_poses, wrap_angle
+from scanloc.estimates import TABLE_COLUMNS, table_covariances, table_poses
 from scanloc.localize.fusion import FusionParams, fuse_odometry
+from scanloc.pose import wrap_angle
 
 CONF = Path(__file__).resolve().parents[1] / "conf" / "localizer"
 RATE = 10.0

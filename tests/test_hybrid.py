@@ -16,12 +16,12 @@ from scipy import stats
 from scanloc.evaluate.metrics import convergence_metrics
 from scanloc.localize.amcl import Amcl, AmclParams, run_filter
 from scanloc.localize.clustering import particle_bins
-from scanloc.localize.estimates import wrap_angle
 from scanloc.localize.hybrid import BIN_VOLUME, HybridAmcl, HybridParams, LearnedProposal
 from scanloc.localize.hybrid import _mixture_density as mixture_density
 from scanloc.localize.proposals import UniformProposal
-from scanloc.localize.trajectory import drive_trajectory
 from scanloc.models.scanlocnet import Hypotheses
+from scanloc.pose import wrap_angle
+from scanloc.trajectory.drive import drive_trajectory
 from test_amcl import SPEC, small_map, ug01_scans
 
 GRID = small_map()

@@ -12,10 +12,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scanloc.localize.trajectory import drive_trajectory
 from scanloc.real.log_mapping import build_map_from_log, save_log_map, trace_cells
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.simulate import ScanSimulator
+from scanloc.trajectory.drive import drive_trajectory
 from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 

@@ -8,13 +8,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from scanloc.evaluate.metrics import (
-    convergence_metrics,
-    localization_metrics,
-    mahalanobis_sq,
-    recall_within,
-)
+from scanloc.evaluate.metrics import convergence_metrics, localization_metrics, mahalanobis_sq
 from scanloc.evaluate.table2 import evaluate_all, evaluate_runs, metrics_json, round_sig
+from scanloc.pose import recall_within
 
 
 def _table(est: np.ndarray, cov: np.ndarray | None = None) -> pd.DataFrame:

@@ -19,11 +19,11 @@ import pandas as pd
 import pytest
 import yaml
 
+from scanloc.estimates import TABLE_COLUMNS
 from scanloc.evaluate.table2 import evaluate_runs
-from scanloc.localize.estimates import TABLE_COLUMNS
-from scanloc.localize.trajectory import Trajectory, save_trajectory
 from scanloc.report import build as report_build
 from scanloc.report.build import SECTIONS, build_report
+from scanloc.trajectory.format import Trajectory, save_trajectory
 from scanloc.world.map_server import save_map
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid
 

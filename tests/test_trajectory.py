@@ -9,15 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scanloc.localize.estimates import wrap_angle
-from scanloc.localize.trajectory import (
-    FILES,
-    OdometryNoise,
-    Trajectory,
-    drive_trajectory,
-    load_trajectory,
-    save_trajectory,
-)
+from scanloc.pose import wrap_angle
+from scanloc.trajectory.drive import drive_trajectory
+from scanloc.trajectory.format import FILES, Trajectory, load_trajectory, save_trajectory
+from scanloc.trajectory.odometry import OdometryNoise
 from scanloc.world.occupancy_grid import OCCUPIED, UNKNOWN, OccupancyGrid
 
 RATE = 10.0

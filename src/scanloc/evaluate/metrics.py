@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scanloc.localize.estimates import table_poses, wrap_angle
+from scanloc.estimates import table_poses
+from scanloc.pose import wrap_angle
 
 POSE_COLUMNS = ("x", "y", "theta")
 POSITION_COV_COLUMNS = ("cov_xx", "cov_xy", "cov_yy")
@@ -43,24 +44,9 @@ WITHIN_THRESHOLDS_M = {"frac_within_0_1m": 0.1, "frac_within_0_25m": 0.25, "frac
 GROSS_FAILURE_M = 1.0
 
 
-RECALL_DISTANCE_M = 0.5
-RECALL_ANGLE_DEG = 10.0
 CONVERGED_DISTANCE_M = 0.5
 CONVERGED_ANGLE_DEG = 10.0
 CONVERGED_STEPS = 20
-
-
-def recall_within(
-    hypotheses: np.ndarray,
-    truth: np.ndarray,
-    distance: float = RECALL_DISTANCE_M,
-    angle_deg: float = RECALL_ANGLE_DEG,
-) -> np.ndarray:
-    """Whether the truth (N, 3) lies within `distance` m and `angle_deg` of at least one of each
-    step's hypotheses (N, K, 3): the top-K recall of K hypotheses."""
-    d = np.hypot(hypotheses[..., 0] - truth[:, None, 0], hypotheses[..., 1] - truth[:, None, 1])
-    a = np.degrees(np.abs(wrap_angle(hypotheses[..., 2] - truth[:, None, 2])))
-    return ((d <= distance) & (a <= angle_deg)).any(axis=1)
 
 
 def read_estimates(path: Path) -> pd.DataFrame:

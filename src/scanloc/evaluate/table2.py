@@ -17,13 +17,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from scanloc.evaluate.metrics import (
-    convergence_metrics,
-    localization_metrics,
-    read_estimates,
-    recall_within,
-)
+from scanloc.evaluate.metrics import convergence_metrics, localization_metrics, read_estimates
 from scanloc.io import atomic_path, read_json
+from scanloc.pose import recall_within
 
 METHOD_ORDER = ("amcl", "cnn_single", "cnn_ensemble")
 TIMING_SUFFIX = "_timing.json"

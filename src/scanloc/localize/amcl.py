@@ -45,14 +45,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scanloc.estimates import Localization, estimate_table
 from scanloc.localize.clustering import bin_dims, cluster_labels, heaviest_cluster
 from scanloc.localize.config_params import params_from_config
-from scanloc.localize.estimates import Localization, estimate_table, wrap_angle
 from scanloc.localize.kld_resampling import resample_kld
 from scanloc.localize.likelihood_field_prob import converged
 from scanloc.localize.motion_model import ODOM_MODELS, odometry_delta, sample_motion
 from scanloc.localize.proposals import Proposal, UniformProposal
 from scanloc.localize.sensor_models import SENSOR_MODELS, LaserGeometry, build_sensor_model
+from scanloc.pose import compose, inverse, wrap_angle
 from scanloc.sensor.laser import LaserSpec
 from scanloc.world.occupancy_grid import OccupancyGrid
 
@@ -169,25 +170,6 @@ class Estimate:
     cov: np.ndarray
     n_particles: int
     updated: bool
-
-
-def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a ⊕ b: pose b (given in a's frame) expressed in a's parent frame; θ wrapped."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    theta = a[2] + b[2]
-    return np.array(
-        [
-            a[0] + c * b[0] - s * b[1],
-            a[1] + s * b[0] + c * b[1],
-            float(wrap_angle(theta)),
-        ]
-    )
-
-
-def inverse(a: np.ndarray) -> np.ndarray:
-    """⊖a: the pose whose composition with a gives the identity."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return np.array([-c * a[0] - s * a[1], s * a[0] - c * a[1], -a[2]])
 
 
 class Amcl:

@@ -19,7 +19,7 @@ import math
 import numba
 import numpy as np
 
-from scanloc.localize.estimates import wrap_pi
+from scanloc.pose import wrap_pi
 
 BIN_XY: float = 0.5  # metres, amcl's pf_kdtree cell size in x and y
 BIN_THETA: float = math.radians(10.0)  # amcl's pf_kdtree cell size in heading

@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from scanloc.localize.estimates import Localization, estimate_table, wrap_angle
+from scanloc.estimates import Localization, estimate_table
+from scanloc.pose import wrap_angle
 
 
 def ensemble_mean_and_cov(preds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

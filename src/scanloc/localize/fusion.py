@@ -36,9 +36,10 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from scanloc.estimates import estimate_table
 from scanloc.localize.config_params import params_from_config
-from scanloc.localize.estimates import estimate_table, wrap_angle
 from scanloc.localize.motion_model import decompose, noise_sigmas
+from scanloc.pose import wrap_angle
 
 
 @dataclass(frozen=True)

@@ -35,8 +35,8 @@ import numpy as np
 from scanloc.localize.amcl import Amcl, AmclParams
 from scanloc.localize.clustering import BIN_THETA, BIN_XY, particle_bins
 from scanloc.localize.config_params import params_from_config
-from scanloc.localize.estimates import wrap_angle, wrap_pi
 from scanloc.localize.proposals import UniformProposal
+from scanloc.pose import wrap_angle, wrap_pi
 from scanloc.sensor.laser import LaserSpec
 from scanloc.world.occupancy_grid import OccupancyGrid
 

@@ -27,9 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scanloc.estimates import estimate_table
 from scanloc.localize.config_params import params_from_config
-from scanloc.localize.estimates import estimate_table, wrap_angle
 from scanloc.localize.fusion import _predict
+from scanloc.pose import wrap_angle
 
 
 @dataclass(frozen=True)

@@ -12,16 +12,16 @@ from typing import Any
 
 import numpy as np
 
+from scanloc.estimates import Localization, table_covariances, table_poses
 from scanloc.localize.amcl import AmclParams, run_amcl, run_filter
 from scanloc.localize.cnn_localizer import localize_cnn
-from scanloc.localize.estimates import Localization, table_covariances, table_poses
 from scanloc.localize.fusion import FusionParams, fuse_odometry
 from scanloc.localize.hybrid import HybridAmcl, HybridParams, LearnedProposal
 from scanloc.localize.hypothesis_tracker import TrackerParams, track_hypotheses
 from scanloc.localize.learned_localizer import localize_learned, scan_hypotheses
 from scanloc.localize.proposals import UniformProposal
-from scanloc.localize.trajectory import Trajectory
 from scanloc.sensor.laser import LaserSpec
+from scanloc.trajectory.format import Trajectory
 from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import OccupancyGrid
 

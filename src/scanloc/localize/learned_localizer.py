@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scanloc.localize.estimates import Localization, estimate_table
+from scanloc.estimates import Localization, estimate_table
 
 
 def scan_hypotheses(

@@ -21,7 +21,7 @@ import math
 import numba
 import numpy as np
 
-from scanloc.localize.estimates import wrap_angle, wrap_pi
+from scanloc.pose import wrap_angle, wrap_pi
 
 ODOM_MODELS: tuple[str, ...] = ("diff", "diff-corrected")
 MIN_TRANS_FOR_BEARING: float = 0.01  # metres; amcl's threshold below which rot1 = 0

@@ -31,8 +31,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from scanloc.localize.estimates import wrap_pi
 from scanloc.models.pose_grid import PoseGrid
+from scanloc.pose import wrap_pi
 
 LOG_STD_RANGE = (-6.0, 2.0)  # clamp of the predicted log standard deviations (in offset units)
 

@@ -28,7 +28,6 @@ from torch import Tensor
 
 from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.data.scan_stream import ScanStream, StreamSpec
-from scanloc.evaluate.metrics import recall_within
 from scanloc.hardware import training_device
 from scanloc.io import atomic_path, write_json
 from scanloc.models.pose_grid import PoseGrid
@@ -42,6 +41,7 @@ from scanloc.models.training import (
     trainer_arguments,
     uses_cuda,
 )
+from scanloc.pose import recall_within
 from scanloc.progress import interactive
 
 RECALL_K = (1, 5, 20)

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scanloc.localize.estimates import wrap_angle
+from scanloc.pose import wrap_angle
 from scanloc.sensor.laser import LaserSpec
 
 DEFAULT_FOV_DEG = 180.0

@@ -23,11 +23,11 @@ from scanloc.evaluate.table2 import (
     format_rows,
 )
 from scanloc.io import read_json
-from scanloc.localize.trajectory import load_trajectory
 from scanloc.report import figures
 from scanloc.report.build import LOCALIZE_DIRS, METHOD_NOTES, METRICS_DIR, SECTIONS, TRAJECTORIES
 from scanloc.report.document import Builder, Para, Section, Table
 from scanloc.sensor.simulate import laser_spec_from_config
+from scanloc.trajectory.format import load_trajectory
 from scanloc.world.map_server import load_map
 
 LEARNED = ("scanlocnet", "scanlocnet_track")

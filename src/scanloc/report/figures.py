@@ -17,8 +17,9 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 
+from scanloc.estimates import table_poses
 from scanloc.io import atomic_path
-from scanloc.localize.estimates import table_poses, wrap_angle
+from scanloc.pose import wrap_angle
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid
 
 DPI = 100

@@ -8,11 +8,11 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-from scanloc.localize.trajectory import load_trajectory
 from scanloc.report import figures
 from scanloc.report.beyond import converge_text, estimate_tables, fmt_value
 from scanloc.report.build import SECTIONS, TRAJECTORIES
 from scanloc.report.document import Builder, Para, Section, Table
+from scanloc.trajectory.format import load_trajectory
 from scanloc.world.map_server import load_map
 
 REAL_METHODS = (

@@ -10,10 +10,10 @@ from omegaconf import DictConfig
 
 from scanloc.io import atomic_path, write_json, write_npz
 from scanloc.localize.kinds import LocalizeInputs, run_localizer
-from scanloc.localize.trajectory import load_trajectory
 from scanloc.progress import steps
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages._app import stage_main, timed_stage, to_dict
+from scanloc.trajectory.format import load_trajectory
 
 
 def localize_all(cfg: DictConfig) -> dict[str, Any]:

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from scanloc.localize.trajectory import Trajectory, save_trajectory
 from scanloc.real.carmen import clean_ranges, laser_spec, read_carmen_log, scan_odometry
 from scanloc.real.log_mapping import build_map_from_log, save_log_map
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
 from scanloc.stages._app import stage_main, timed_stage, to_dict
+from scanloc.trajectory.format import Trajectory, save_trajectory
 
 
 def check_sensor(log_path: Path, from_log: LaserSpec, configured: LaserSpec) -> None:

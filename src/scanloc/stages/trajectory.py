@@ -5,10 +5,12 @@ from __future__ import annotations
 
 from omegaconf import DictConfig
 
-from scanloc.localize.trajectory import OdometryNoise, drive_trajectory, save_trajectory
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
 from scanloc.stages._app import stage_main, timed_stage, to_dict
+from scanloc.trajectory.drive import drive_trajectory
+from scanloc.trajectory.format import save_trajectory
+from scanloc.trajectory.odometry import OdometryNoise
 from scanloc.world.map_server import load_map
 
 

@@ -198,7 +198,7 @@ CAST_MAP_BYTES_PER_CELL = 10  # the ray caster's blocked mask and per-cell jump 
 FIELD_BYTES_PER_CELL = 9  # kept per field: amcl's pz³ (float64), nav2's log pz and near mask
 PROPOSAL_BYTES_PER_FREE_CELL = 32  # amcl's free-cell list (x, y float64) + np.nonzero's indices
 PLAN_BYTES_PER_NODE = 160  # the trajectory's planning graph (0.1 m nodes, 8-neighbour edges)
-PLAN_RESOLUTION = 0.1  # scanloc.localize.trajectory.PLAN_RESOLUTION
+PLAN_RESOLUTION = 0.1  # scanloc.trajectory.PLAN_RESOLUTION
 SIM_CHUNK = 8192  # scans cast at a time by the scans stage (scan_dataset chunk_size)
 CAST_BYTES_PER_READING = 12  # a cast range (float64) and its float32 reading
 # Training scans of one epoch: worker cast + noise (float64 x 2, float32 x 3) and its copy

@@ -4,17 +4,18 @@ One row per trajectory step: step index, time, pose (x, y, θ ∈ (−π, π]), 
 entries of the pose covariance (NaN where a localizer has none) and `n_particles`, the number
 of hypotheses behind the estimate (amcl: particles; an ensemble: members; one network or a
 Kalman filter: 1). Evaluation and report read this format; localizers build it here.
+A ground-floor module: it imports only scanloc.pose.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import NamedTuple
 
-import numba
 import numpy as np
 import pandas as pd
+
+from scanloc.pose import wrap_angle
 
 TABLE_COLUMNS: tuple[str, ...] = (
     "step",
@@ -68,17 +69,6 @@ class Localization(NamedTuple):
             "setup_s": float(self.setup_s),
             **(self.counts or {}),
         }
-
-
-def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
-    """Angles wrapped to (−π, π]."""
-    return np.pi - np.mod(np.pi - np.asarray(angle, dtype=np.float64), 2.0 * np.pi)
-
-
-@numba.njit(cache=True, inline="always")
-def wrap_pi(angle: float) -> float:
-    """One angle wrapped to (−π, π] in compiled code, as wrap_angle does (no trigonometry)."""
-    return math.pi - np.mod(math.pi - angle, 2.0 * math.pi)
 
 
 def estimate_table(
