@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scanloc.estimates import Localization, estimate_table
+from scanloc.localize.catalog import META_KEYS
 from scanloc.localize.clustering import bin_dims, cluster_labels, heaviest_cluster
 from scanloc.localize.config_params import params_from_config
 from scanloc.localize.kld_resampling import resample_kld
@@ -57,7 +58,7 @@ from scanloc.pose import compose, inverse, wrap_angle
 from scanloc.sensor.laser import LaserSpec
 from scanloc.world.occupancy_grid import OccupancyGrid
 
-_CONFIG_META_KEYS = frozenset({"name", "kind", "mode", "seed"})
+_CONFIG_META_KEYS = frozenset(META_KEYS)
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ import numpy as np
 
 from scanloc.estimates import Localization, table_covariances, table_poses
 from scanloc.localize.amcl import AmclParams, run_amcl, run_filter
+from scanloc.localize.catalog import META_KEYS
 from scanloc.localize.cnn_localizer import localize_cnn
 from scanloc.localize.fusion import FusionParams, fuse_odometry
 from scanloc.localize.hybrid import HybridAmcl, HybridParams, LearnedProposal
@@ -25,8 +26,6 @@ from scanloc.trajectory.format import Trajectory
 from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import OccupancyGrid
 
-# Keys of a localizer config that describe it rather than parametrise its filter.
-META_KEYS = ("name", "kind", "mode", "seed")
 # Keys of a hybrid config beside amcl's parameters: the learned model and its proposal.
 HYBRID_KEYS = ("model", "k", "k_raw", "nms_distance", "nms_angle_deg", "proposal")
 

@@ -1,0 +1,107 @@
+"""The one list of localizers: every conf/localizer/<name>.yaml, read with its metadata.
+
+A localizer config declares, beside its own parameters, what the pipeline and the report need
+to know of it:
+- `kind`: the registered class or function that runs it (scanloc.localize.kinds);
+- `group`: `tracking` (starts from the true first pose), `global` (no initial pose), or
+  `learned` (from each scan, or learned hypotheses tracked over time);
+- `note`: one line for the report's tables;
+- `stages`: which pipeline stages run it (`localize`: every map, log and run; `localize_cnn`:
+  the paper's CNN localizers on map 1; `[]`: a documented variant to run by hand);
+- `global_table` (optional, false): whether the report's global-localization table lists it.
+Adding a localizer is adding one such file (plus, for a new kind, one registered class).
+A config may inherit from another through its Hydra defaults list (`defaults: [amcl, _self_]`):
+metadata is inherited too, unless the file sets its own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+CONF_DIR = Path("conf/localizer")
+GROUPS = ("tracking", "global", "learned")
+STAGES = ("localize", "localize_cnn")
+# Keys of a localizer config that describe it rather than parametrise it.
+META_KEYS = ("name", "kind", "mode", "seed", "group", "note", "stages", "global_table")
+
+
+@dataclass(frozen=True)
+class LocalizerInfo:
+    """What the pipeline and the report know of one localizer config."""
+
+    name: str
+    kind: str
+    group: str
+    note: str
+    stages: tuple[str, ...]
+    global_table: bool
+
+
+def _read(path: Path) -> dict[str, Any]:
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as err:
+        raise ValueError(f"{path}: not valid YAML ({err})") from err
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a mapping of localizer settings")
+    return data
+
+
+def raw_config(name: str, conf_dir: Path = CONF_DIR) -> dict[str, Any]:
+    """conf/localizer/<name>.yaml merged over the configs its defaults list names (parents
+    first, `_self_` last), without interpolation: what Hydra composes, for top-level keys."""
+    path = conf_dir / f"{name}.yaml"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such localizer config")
+    own = _read(path)
+    merged: dict[str, Any] = {}
+    for parent in own.pop("defaults", []) or []:
+        if parent != "_self_":
+            merged.update(raw_config(str(parent), conf_dir))
+    merged.update(own)
+    return merged
+
+
+def _info(name: str, cfg: Mapping[str, Any], path: Path) -> LocalizerInfo:
+    def need(key: str, expected: str) -> Any:
+        if key not in cfg:
+            raise ValueError(f"{path}: field '{key}' missing (expected {expected})")
+        return cfg[key]
+
+    kind = str(need("kind", "the localizer's kind"))
+    group = str(need("group", f"one of {list(GROUPS)}"))
+    if group not in GROUPS:
+        raise ValueError(f"{path}: field 'group': expected one of {list(GROUPS)}, got {group!r}")
+    stages = need("stages", f"a list of stages from {list(STAGES)}, or []")
+    if not isinstance(stages, list) or any(s not in STAGES for s in stages):
+        raise ValueError(
+            f"{path}: field 'stages': expected a list of {list(STAGES)}, got {stages!r}"
+        )
+    if cfg.get("name") != name:
+        raise ValueError(f"{path}: field 'name': expected {name!r}, got {cfg.get('name')!r}")
+    return LocalizerInfo(
+        name=name,
+        kind=kind,
+        group=group,
+        note=str(need("note", "one line for the report")),
+        stages=tuple(stages),
+        global_table=bool(cfg.get("global_table", False)),
+    )
+
+
+def load_catalog(conf_dir: Path = CONF_DIR) -> dict[str, LocalizerInfo]:
+    """Every localizer config of `conf_dir`, by name, in file-name order."""
+    paths = sorted(Path(conf_dir).glob("*.yaml"))
+    return {p.stem: _info(p.stem, raw_config(p.stem, conf_dir), p) for p in paths}
+
+
+def stage_localizers(stage: str, conf_dir: Path = CONF_DIR) -> list[str]:
+    """The names of the localizers `stage` runs, in file-name order."""
+    if stage not in STAGES:
+        raise ValueError(f"stage {stage!r}: expected one of {list(STAGES)}")
+    return [n for n, info in load_catalog(conf_dir).items() if stage in info.stages]
