@@ -23,8 +23,9 @@ from pathlib import Path
 
 import torch
 
+from scanloc.models.model_files import read_model_file
 from scanloc.models.stacked_ensemble import fit_stacked
-from scanloc.models.training import fit, read_model_file
+from scanloc.models.training import fit
 from train_throughput import (
     logging_off,
     pipeline_precision,

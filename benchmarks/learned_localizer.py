@@ -33,10 +33,10 @@ from omegaconf import OmegaConf
 
 from amcl_every_scan import pipeline_run
 from scanloc.data.scan_stream import ScanStream, StreamSpec, simulate_epoch
+from scanloc.models.model_files import build_model, predict
 from scanloc.models.pose_grid import PoseGrid
 from scanloc.models.scanlocnet import suppress_duplicates, top_k
 from scanloc.models.scanlocnet_training import encode_targets, scanlocnet_loss
-from scanloc.models.training import build_model, predict
 from scanloc.pose import recall_within
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import ScanSimulator, laser_spec_from_config

@@ -27,7 +27,9 @@ import numba
 import numpy as np
 
 from scanloc.sensor.laser import LaserSpec
-from scanloc.sensor.raycast import CastMap, cast_exact, cast_reference, cast_stdr
+from scanloc.sensor.raycast import CastMap, cast_exact
+from scanloc.sensor.raycast_reference import cast_reference
+from scanloc.sensor.raycast_stdr import cast_stdr
 from scanloc.world.free_space import sample_free_poses
 from scanloc.world.occupancy_grid import OccupancyGrid
 

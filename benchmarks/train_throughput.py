@@ -42,7 +42,7 @@ from scanloc.data.datamodule import ScanDataModule
 from scanloc.data.scan_dataset import save_scan_dataset
 from scanloc.models.cnn1d import Cnn1d
 from scanloc.models.pose_regressor import PoseRegressor, mae_loss
-from scanloc.models.training import keep_freed_memory, trainer_arguments
+from scanloc.models.trainer_setup import keep_freed_memory, trainer_arguments
 
 BEAMS = 667
 PIPELINE_TRAINER = Path(__file__).resolve().parents[1] / "conf" / "trainer" / "cpu.yaml"

@@ -10,16 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scanloc.real.carmen import (
-    CarmenFormatError,
-    CarmenLog,
-    carmen_beam_angles,
-    clean_ranges,
-    laser_spec,
-    odometry_at,
-    read_carmen_log,
-    scan_odometry,
-)
+from scanloc.real.carmen import CarmenFormatError, CarmenLog, carmen_beam_angles, read_carmen_log
+from scanloc.real.carmen_laser import clean_ranges, laser_spec
+from scanloc.real.carmen_odometry import odometry_at, scan_odometry
 
 CARMEN_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "carmen"
 

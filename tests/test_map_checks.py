@@ -17,23 +17,25 @@ from omegaconf import OmegaConf
 from PIL import Image
 
 from scanloc.data.scan_dataset import generate_scan_dataset, load_scan_dataset
-from scanloc.localize.proposals import UniformProposal
+from scanloc.localize.mcl.proposals import UniformProposal
+from scanloc.models.pose_grid import DECODE_BATCH
 from scanloc.sensor.simulate import laser_spec_from_config
-from scanloc.stages.maps import pipeline_sizes
+from scanloc.stages.budget import (
+    PROCESS_BYTES,
+    MapTooLargeError,
+    PipelineSizes,
+    check_memory,
+    estimate_memory,
+    pipeline_sizes,
+)
 from scanloc.world.build import build_map
 from scanloc.world.free_space import sample_free_poses
 from scanloc.world.map_checks import (
-    DECODE_BATCH,
     MAX_OCCUPIED_SHARE,
-    PROCESS_BYTES,
     MapCheckError,
-    MapTooLargeError,
     MapWarning,
-    PipelineSizes,
     cell_shares,
     check_map,
-    check_memory,
-    estimate_memory,
     free_component_sizes,
     map_label,
     planned_shape,

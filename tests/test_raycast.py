@@ -12,14 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from scanloc.sensor.laser import LaserSpec
-from scanloc.sensor.raycast import (
-    CastMap,
-    blocked_boxes,
-    cast_exact,
-    cast_reference,
-    cast_stdr,
-    stdr_angle_offsets,
-)
+from scanloc.sensor.raycast import CastMap, cast_exact
+from scanloc.sensor.raycast_boxes import blocked_boxes
+from scanloc.sensor.raycast_reference import cast_reference
+from scanloc.sensor.raycast_stdr import cast_stdr, stdr_angle_offsets
 from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 

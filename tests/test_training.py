@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 import torch
 
-import scanloc.models.training as training
+import scanloc.models.trainer_setup as trainer_setup
 from scanloc.data.datamodule import ScanDataModule, batch_slices, epoch_permutation
+from scanloc.models.model_files import load_model, predict, read_model_file
 from scanloc.models.pose_regressor import HISTORY_COLUMNS, PoseRegressor
-from scanloc.models.training import fit, load_model, predict, read_model_file, resolve_precision
+from scanloc.models.trainer_setup import resolve_precision
+from scanloc.models.training import fit
 
 CNN1D = {"_target_": "scanloc.models.cnn1d.Cnn1d", "pool_size": 8}
 
@@ -215,15 +217,15 @@ def test_auto_precision_is_bf16_only_where_the_hardware_has_it(monkeypatch) -> N
     assert resolve_precision("32-true", "cpu") == "32-true"
     assert resolve_precision("bf16-mixed", "cpu") == "bf16-mixed"
     for native, expected in ((True, "bf16-mixed"), (False, "32-true")):
-        monkeypatch.setattr(training, "cpu_has_native_bf16", lambda native=native: native)
+        monkeypatch.setattr(trainer_setup, "cpu_has_native_bf16", lambda native=native: native)
         assert resolve_precision("auto", "cpu") == expected
-        assert training.trainer_arguments({"precision": "auto"})["precision"] == expected
+        assert trainer_setup.trainer_arguments({"precision": "auto"})["precision"] == expected
     if not torch.cuda.is_available():
         assert resolve_precision("auto", "gpu") == "32-true"
 
 
 def test_fit_records_its_resolved_precision(scans: Path, tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setattr(training, "cpu_has_native_bf16", lambda: False)
+    monkeypatch.setattr(trainer_setup, "cpu_has_native_bf16", lambda: False)
     metrics = train(scans, tmp_path, trainer_cfg={"precision": "auto"})
     assert metrics["precision"] == "32-true"
     assert json.loads((tmp_path / "metrics.json").read_text())["precision"] == "32-true"

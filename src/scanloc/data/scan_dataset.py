@@ -39,6 +39,7 @@ from scanloc.world.occupancy_grid import OccupancyGrid
 FORMAT_NAME = "scanloc.scans"
 FORMAT_VERSION = 1
 NOISE_BLOCK = 1024
+SIM_CHUNK = 8192  # scans simulated at a time by default: bounds memory, not the bytes
 _STREAM_POSES, _STREAM_SPLIT, _STREAM_NOISE = 0, 1, 2
 _FILES = {
     "ranges.npy": "float32 (count, sensor.num_beams) readings in metres; no return = "
@@ -75,7 +76,7 @@ def generate_scan_dataset(
     map_name: str = "<unnamed>",
     mode: str = "exact",
     unknown_blocks: bool = False,
-    chunk_size: int = 8192,
+    chunk_size: int = SIM_CHUNK,
 ) -> dict[str, Any]:
     """Simulate `num_samples` scans at poses uniform over `grid`'s free space into `out_dir`.
 

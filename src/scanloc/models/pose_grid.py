@@ -18,6 +18,10 @@ import numpy as np
 from scanloc.world.free_space import centre_clearance
 from scanloc.world.occupancy_grid import OccupancyGrid
 
+# Scans whose hypotheses over the whole pose grid are decoded together (scanlocnet.top_k):
+# their logits, scans x cells x heading bins, are what decoding holds at once.
+DECODE_BATCH = 256
+
 
 @dataclass(frozen=True)
 class PoseGrid:

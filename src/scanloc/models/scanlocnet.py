@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from scanloc.models.pose_grid import PoseGrid
+from scanloc.models.pose_grid import DECODE_BATCH, PoseGrid
 from scanloc.pose import wrap_pi
 
 LOG_STD_RANGE = (-6.0, 2.0)  # clamp of the predicted log standard deviations (in offset units)
@@ -149,7 +149,11 @@ class Hypotheses:
 
 @torch.inference_mode()
 def top_k(
-    model: ScanLocNet, ranges: np.ndarray | Tensor, k: int, batch_size: int = 256, chunk: int = 16
+    model: ScanLocNet,
+    ranges: np.ndarray | Tensor,
+    k: int,
+    batch_size: int = DECODE_BATCH,
+    chunk: int = 16,
 ) -> Hypotheses:
     """The exact K best (cell, bin) hypotheses of each scan, by branch and bound over cells.
 

@@ -30,17 +30,11 @@ from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.data.scan_stream import ScanStream, StreamSpec
 from scanloc.hardware import training_device
 from scanloc.io import atomic_path, write_json
+from scanloc.models.model_files import build_model, count_parameters, save_model
 from scanloc.models.pose_grid import PoseGrid
 from scanloc.models.scanlocnet import ScanLocNet, top_k
-from scanloc.models.training import (
-    build_model,
-    count_parameters,
-    keep_freed_memory,
-    print_epoch_line,
-    save_model,
-    trainer_arguments,
-    uses_cuda,
-)
+from scanloc.models.trainer_setup import keep_freed_memory, trainer_arguments, uses_cuda
+from scanloc.models.training import print_epoch_line
 from scanloc.pose import recall_within
 from scanloc.progress import interactive
 

@@ -39,21 +39,21 @@ from scanloc.data.datamodule import EpochBatches, ScanDataModule
 from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.hardware import training_device
 from scanloc.models.lr_schedule import keras_decay
-from scanloc.models.pose_regressor import epoch_row, mae_loss, make_adam, pose_error_sums
-from scanloc.models.training import (
+from scanloc.models.model_files import (
     PathLike,
     build_model,
-    compile_requested,
     count_parameters,
     dataset_model_cfg,
-    keep_freed_memory,
     save_model,
-    trainer_arguments,
-    training_metrics,
-    uses_cuda,
-    write_history,
-    write_run_metrics,
 )
+from scanloc.models.pose_regressor import epoch_row, mae_loss, make_adam, pose_error_sums
+from scanloc.models.trainer_setup import (
+    compile_requested,
+    keep_freed_memory,
+    trainer_arguments,
+    uses_cuda,
+)
+from scanloc.models.training import training_metrics, write_history, write_run_metrics
 
 Mode = Literal["loop", "vmap"]
 

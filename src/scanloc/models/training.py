@@ -19,15 +19,8 @@ weights an uninterrupted run would have produced.
 
 from __future__ import annotations
 
-import copy
-import ctypes
-import functools
 import hashlib
-import inspect
-import io
 import json
-import logging
-import os
 import statistics
 import tempfile
 import warnings
@@ -39,10 +32,7 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from hydra.utils import get_class, instantiate
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
-from omegaconf import DictConfig, OmegaConf
-from torch import nn
 
 import scanloc.data.datamodule as datamodule_py
 import scanloc.data.rasterize as rasterize_py
@@ -50,143 +40,40 @@ from scanloc.data.datamodule import ScanDataModule
 from scanloc.data.scan_dataset import ScanDataset, load_scan_dataset
 from scanloc.hardware import training_device
 from scanloc.io import atomic_path, write_json
+from scanloc.models.model_files import (
+    PathLike,
+    build_model,
+    count_parameters,
+    dataset_model_cfg,
+    load_model,
+    load_weights_,
+    predict,
+    read_model_file,
+    save_model,
+)
 from scanloc.models.pose_regressor import HISTORY_COLUMNS, PoseRegressor
+from scanloc.models.trainer_setup import (
+    compile_requested,
+    keep_freed_memory,
+    quiet_lightning,
+    trainer_arguments,
+    uses_cuda,
+)
 from scanloc.progress import interactive, print_line, step_line
 
-PathLike = str | os.PathLike[str]
-TRAINER_DEFAULTS: dict[str, Any] = {
-    "accelerator": "cpu",
-    "devices": 1,
-    "precision": "32-true",
-    "deterministic": True,
-}
+# Re-exported: `fit`'s callers load and run what it wrote through this module.
+__all__ = [
+    "MACHINE_KEYS",
+    "build_model",
+    "fit",
+    "load_model",
+    "predict",
+    "read_model_file",
+    "save_model",
+]
+
 # Figures that measure the machine rather than the run: kept out of the model folder.
 MACHINE_KEYS = ("epoch_s", "device")
-# Trainer arguments that fit sets itself.
-_FIXED_TRAINER_KEYS = {
-    "max_epochs",
-    "logger",
-    "callbacks",
-    "default_root_dir",
-    "enable_checkpointing",
-    "num_sanity_val_steps",
-    "check_val_every_n_epoch",
-}
-
-
-# ---------------------------------------------------------------- model files
-
-
-def build_model(model_cfg: Mapping[str, Any]) -> nn.Module:
-    """Instantiate a network from a config dict with `_target_` (hydra.utils.instantiate)."""
-    _target_of(model_cfg)
-    return instantiate(plain_config(model_cfg), _convert_="all")
-
-
-def plain_config(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """A plain JSON-able copy (no OmegaConf nodes), as stored in model files."""
-    if isinstance(model_cfg, DictConfig):
-        model_cfg = OmegaConf.to_container(model_cfg, resolve=True)  # type: ignore[assignment]
-    return json.loads(json.dumps(dict(model_cfg)))
-
-
-def dataset_model_cfg(model_cfg: Mapping[str, Any], data: ScanDataset) -> dict[str, Any]:
-    """model_cfg with the sensor geometry the network's constructor takes filled in from the
-    dataset (num_beams; angle_min/angle_max for the 2D CNN) unless given; a num_beams that
-    contradicts the data is an error."""
-    cfg = plain_config(model_cfg)
-    accepted = inspect.signature(get_class(_target_of(cfg))).parameters
-    beams = int(data.ranges.shape[1])
-    if cfg.setdefault("num_beams", beams) != beams:
-        raise ValueError(
-            f"{data.path}/ranges.npy: scans have {beams} beams, model_cfg says "
-            f"num_beams={cfg['num_beams']}"
-        )
-    sensor = data.meta.get("sensor", {})
-    for key in ("angle_min", "angle_max"):
-        if key in accepted and key in sensor:
-            cfg.setdefault(key, float(sensor[key]))
-    return cfg
-
-
-def _target_of(model_cfg: Mapping[str, Any]) -> str:
-    if "_target_" not in model_cfg:
-        raise ValueError(f"model_cfg needs a '_target_' (a class path), got keys {list(model_cfg)}")
-    return str(model_cfg["_target_"])
-
-
-def model_file_bytes(model_cfg: Mapping[str, Any], state_dict: Mapping[str, torch.Tensor]) -> bytes:
-    """The model.pt format. Saved through memory: torch.save names its zip folder after the
-    file, so saving to a temporary name would put that name into the bytes."""
-    state = {k: v.detach().cpu().clone().contiguous() for k, v in state_dict.items()}
-    buffer = io.BytesIO()
-    torch.save({"model_cfg": copy.deepcopy(dict(model_cfg)), "state_dict": state}, buffer)
-    return buffer.getvalue()
-
-
-def save_model(path: PathLike, model_cfg: Mapping[str, Any], state_dict) -> None:
-    """Write a model file atomically."""
-    data = model_file_bytes(model_cfg, state_dict)
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-
-
-def read_model_file(path: PathLike) -> dict[str, Any]:
-    """{"model_cfg", "state_dict"} of a model.pt, with errors that name the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: model file not found")
-    try:
-        content = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises several types for a damaged file
-        raise ValueError(f"{path}: not a readable model file ({err})") from None
-    if not isinstance(content, dict) or not {"model_cfg", "state_dict"} <= content.keys():
-        raise ValueError(f"{path}: expected a dict with 'model_cfg' and 'state_dict'")
-    return content
-
-
-def load_model(path: PathLike) -> nn.Module:
-    """The network stored in a model.pt, in eval mode on the CPU."""
-    content = read_model_file(path)
-    model = build_model(content["model_cfg"])
-    model.load_state_dict(content["state_dict"])
-    return model.eval()
-
-
-def load_weights_(model: nn.Module, path: PathLike) -> None:
-    """Copy the weights of a compatible model.pt into `model` (transfer learning)."""
-    state = read_model_file(path)["state_dict"]
-    own = model.state_dict()
-    mismatched = [k for k in own if k not in state or state[k].shape != own[k].shape]
-    if mismatched or len(state) != len(own):
-        raise ValueError(
-            f"{path}: 'state_dict' does not fit this model (missing or differently shaped: "
-            f"{mismatched[:5]}; {len(state)} vs {len(own)} entries)"
-        )
-    model.load_state_dict(state)
-
-
-@torch.no_grad()
-def predict(model: nn.Module, ranges: np.ndarray, batch_size: int = 512) -> np.ndarray:
-    """Poses (N, 3) float64 = (x, y, θ) predicted for scans `ranges` (N, beams), in eval mode."""
-    ranges = np.asarray(ranges, dtype=np.float32)
-    if ranges.ndim != 2:
-        raise ValueError(f"ranges must have shape (N, beams), got {ranges.shape}")
-    model.eval()
-    device = next(model.parameters()).device
-    out = [
-        model(torch.from_numpy(ranges[i : i + batch_size]).to(device)).double().cpu()
-        for i in range(0, len(ranges), batch_size)
-    ]
-    return torch.cat(out).numpy() if out else np.zeros((0, 3))
-
-
-def count_parameters(model: nn.Module) -> int:
-    """Trainable parameters (Keras' 'trainable params')."""
-    return sum(p.numel() for p in model.parameters() if p.requires_grad)
-
-
-# ---------------------------------------------------------------- outputs
 
 
 def write_history(path: PathLike, history: Sequence[Mapping[str, float]]) -> None:
@@ -329,101 +216,6 @@ class _Snapshots(Callback):
             save_model(path, self.model_cfg, pl_module.model.state_dict())
 
 
-def trainer_arguments(trainer_cfg: Mapping[str, Any] | None) -> dict[str, Any]:
-    """Trainer kwargs: TRAINER_DEFAULTS updated by trainer_cfg (conf/trainer/*.yaml).
-
-    `matmul_precision` is not a Trainer argument: it sets torch.set_float32_matmul_precision.
-    `compile` is not one either: `fit` reads it (see compile_requested).
-    `precision: auto` becomes a Lightning precision here (see resolve_precision).
-    """
-    cfg = dict(trainer_cfg or {})
-    clash = sorted(_FIXED_TRAINER_KEYS & cfg.keys())
-    if clash:
-        raise ValueError(f"trainer_cfg: {clash} are set by scanloc.models.training.fit")
-    cfg.pop("compile", None)
-    matmul = cfg.pop("matmul_precision", None)
-    if matmul is not None:
-        torch.set_float32_matmul_precision(matmul)
-    args = {**TRAINER_DEFAULTS, **cfg}
-    args["precision"] = resolve_precision(args["precision"], str(args["accelerator"]))
-    return args
-
-
-def resolve_precision(precision: Any, accelerator: str) -> str:
-    """Lightning's precision string; "auto" is bf16-mixed where the hardware multiplies bf16
-    natively, else 32-true.
-
-    Natively means bf16 dot-product instructions (x86 avx512_bf16 or AMX) on the CPU, or a GPU
-    with bf16 tensor cores. There bf16 autocast trains the 1D CNN 1.8-2x faster than float32
-    on CPU; 4 seeds per precision showed no significant difference of the mean validation MAE
-    (a Welch test, benchmarks/precision_noise.py), which is not a proof of equivalence.
-    Elsewhere bf16 would be emulated, and slower.
-    """
-    precision = str(precision)
-    if precision != "auto":
-        return precision
-    if uses_cuda(accelerator):
-        native = torch.cuda.is_available() and torch.cuda.is_bf16_supported(
-            including_emulation=False
-        )
-    else:
-        native = cpu_has_native_bf16()
-    return "bf16-mixed" if native else "32-true"
-
-
-def uses_cuda(accelerator: str) -> bool:
-    """Whether a Trainer with this `accelerator` trains on a CUDA device."""
-    return accelerator in ("gpu", "cuda") or (accelerator == "auto" and torch.cuda.is_available())
-
-
-def compile_requested(trainer_cfg: Mapping[str, Any] | None) -> bool:
-    """trainer_cfg `compile: true`: the network's forward goes through torch.compile (in place,
-    so state dicts keep their keys). Meant for GPUs; on 2 CPU cores it trained the 1D CNN
-    0.83x as fast after a 21 s compilation, so the CPU config leaves it off."""
-    value = dict(trainer_cfg or {}).get("compile", False)
-    if not isinstance(value, bool):
-        raise ValueError(f"trainer_cfg compile: expected true or false, got {value!r}")
-    return value
-
-
-@functools.cache
-def cpu_has_native_bf16() -> bool:
-    """Whether this CPU has bf16 dot-product instructions (Linux: /proc/cpuinfo flags)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return False
-    flags = next(
-        (line.split(":", 1)[1].split() for line in text.splitlines() if line.startswith("flags")),
-        [],
-    )
-    return "avx512_bf16" in flags or "amx_bf16" in flags
-
-
-def keep_freed_memory() -> bool:
-    """Let glibc keep freed memory for reuse instead of handing it back to the OS at once.
-
-    A training step frees and re-allocates activation blocks of tens of MB. With glibc's
-    defaults each is a fresh mmap whose pages fault in again at every step: the 1D CNN at
-    batch 400 on CPU spent ~40 % of its time in the kernel and trained 1.7x slower. Raising the
-    mmap and trim thresholds to 1 GiB keeps such blocks in the heap. Process-wide; returns
-    False where it does not apply (no glibc).
-    """
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:
-        return False
-    m_trim_threshold, m_mmap_threshold = -1, -3  # from malloc.h
-    return bool(libc.mallopt(m_mmap_threshold, 1 << 30) and libc.mallopt(m_trim_threshold, 1 << 30))
-
-
-def _quiet_lightning() -> None:
-    """Keep Lightning's banner lines (GPU available, TPU...) out of non-interactive logs."""
-    if not interactive():
-        for name in ("lightning.pytorch.utilities.rank_zero", "lightning.fabric.utilities.seed"):
-            logging.getLogger(name).setLevel(logging.WARNING)
-
-
 def fit(
     *,
     model_cfg: Mapping[str, Any],
@@ -465,7 +257,7 @@ def fit(
     kwargs = trainer_arguments(trainer_cfg)
     config["precision"] = kwargs["precision"]  # "auto" resolved on this machine
     counts = split_counts(data, max_samples)
-    _quiet_lightning()
+    quiet_lightning()
     keep_freed_memory()
     with _run_dir(checkpoint_dir, lambda: run_key(config, dataset_dir, init_from)) as run_dir:
         L.seed_everything(seed, workers=True, verbose=False)

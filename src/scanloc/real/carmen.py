@@ -18,9 +18,12 @@ Corrected logs (Radish's `*-corrected.log`, written by a scan matcher) differ fr
   line the matcher wrote an ODOM line repeating the corrected pose (an "echo", with timestamp 0
   or garbage such as 1e-42), and the ODOM lines up to the next scan continue from that pose with
   the wheel odometry's motion. So ODOM stays within centimetres of the corrected path, and
-  `odometry_at` interpolates a nearly corrected track; `scan_odometry` rebuilds the drifting
-  wheel odometry from the per-scan increments.
+  `carmen_odometry.odometry_at` interpolates a nearly corrected track; `scan_odometry`
+  there rebuilds the drifting wheel odometry from the per-scan increments.
 Angles are as logged (the corrected headings stray slightly past ±π).
+
+This module holds the data types and the reader; `carmen_fields` reads one line's fields,
+`carmen_laser` turns a stream into the project's sensor conventions.
 """
 
 from __future__ import annotations
@@ -35,13 +38,18 @@ from pathlib import Path
 
 import numpy as np
 
-from scanloc.pose import wrap_angle
-from scanloc.sensor.laser import LaserSpec
+from scanloc.real.carmen_fields import CarmenFormatError, LineFields
+
+__all__ = [
+    "CarmenFormatError",
+    "CarmenLog",
+    "LaserStream",
+    "Odometry",
+    "carmen_beam_angles",
+    "read_carmen_log",
+]
 
 DEFAULT_FOV_DEG = 180.0
-# The project's simulated scans fill "no return" with 7.0 m for a 5.6 m laser (LaserSpec's
-# defaults): a value 1.25 x range_max, above every real reading, in the same proportion here.
-NO_RETURN_FACTOR = LaserSpec().no_return_value / LaserSpec().range_max
 # Which message feeds each stream; the first one present wins (ROBOTLASER carries its angles).
 STREAM_MESSAGES = {"front": ("ROBOTLASER1", "FLASER"), "rear": ("ROBOTLASER2", "RLASER")}
 # PARAM names of the old-format lasers' geometry (degrees), as in carmen.ini.
@@ -61,10 +69,6 @@ _ROBOT_LASER_FIELDS = (
     "turn_axis",
 )
 _ODOM_FIELDS = ("x", "y", "theta", "tv", "rv", "accel")
-
-
-class CarmenFormatError(ValueError):
-    """A line that breaks the CARMEN log format; the message names file, line and field."""
 
 
 @dataclass(frozen=True)
@@ -155,127 +159,6 @@ def carmen_beam_angles(
     return math.radians(-0.5 * fov), math.radians(resolution)
 
 
-def default_no_return_value(max_range: float) -> float:
-    """The fill value for "no return": NO_RETURN_FACTOR x max_range (7.0 m for 5.6 m)."""
-    return NO_RETURN_FACTOR * float(max_range)
-
-
-def clean_ranges(
-    ranges: np.ndarray, max_range: float, no_return_value: float | None = None
-) -> np.ndarray:
-    """float32 readings with "no return" encoded as in the project's simulated scans.
-
-    Readings >= max_range (the logs' max-range markers, 81.83 / 81.91 m, and anything the
-    sensor could not measure reliably), <= 0 or NaN become `no_return_value` (default
-    `default_no_return_value(max_range)`, above max_range).
-    """
-    if not max_range > 0:
-        raise ValueError(f"max_range must be > 0, got {max_range}")
-    fill = default_no_return_value(max_range) if no_return_value is None else no_return_value
-    if not fill > max_range:
-        raise ValueError(f"no_return_value ({fill}) must exceed max_range ({max_range})")
-    readings = np.asarray(ranges, dtype=np.float32)
-    with np.errstate(invalid="ignore"):
-        valid = (readings > 0) & (readings < np.float32(max_range))
-    return np.where(valid, readings, np.float32(fill)).astype(np.float32)
-
-
-def laser_spec(
-    stream: LaserStream, max_range: float, no_return_value: float | None = None
-) -> LaserSpec:
-    """The LaserSpec of a stream: its beams and angles, range limits [0, max_range], the
-    fill value for "no return" (see clean_ranges) and its scan rate (median, as logged)."""
-    fill = default_no_return_value(max_range) if no_return_value is None else no_return_value
-    steps = np.diff(stream.times)
-    steps = steps[steps > 0]
-    rate = 1.0 / float(np.median(steps)) if len(steps) else LaserSpec().rate_hz
-    return LaserSpec(
-        num_beams=stream.num_beams,
-        angle_min=stream.angle_min,
-        angle_max=stream.angle_min + (stream.num_beams - 1) * stream.angle_increment,
-        range_min=0.0,
-        range_max=float(max_range),
-        rate_hz=rate,
-        no_return_value=float(fill),
-    )
-
-
-class _Line:
-    """The fields of one line, read left to right; errors name file, line number and field."""
-
-    def __init__(self, where: str, tokens: list[str]) -> None:
-        self.where = where
-        self.tag = tokens[0]
-        self.tokens = tokens
-        self.pos = 1
-        self.last = self.tag
-
-    def error(self, name: str, expected: str, got: object) -> CarmenFormatError:
-        return CarmenFormatError(
-            f"{self.where}: {self.tag} field '{name}': expected {expected}, got {got!r}"
-        )
-
-    def _missing(self, name: str) -> CarmenFormatError:
-        return CarmenFormatError(
-            f"{self.where}: {self.tag} field '{name}': missing (the line ends after "
-            f"{len(self.tokens)} fields)"
-        )
-
-    def word(self, name: str) -> str:
-        if self.pos >= len(self.tokens):
-            raise self._missing(name)
-        self.pos += 1
-        self.last = name
-        return self.tokens[self.pos - 1]
-
-    def number(self, name: str) -> float:
-        token = self.word(name)
-        try:
-            return float(token)
-        except ValueError:
-            raise self.error(name, "a number", token) from None
-
-    def count(self, name: str) -> int:
-        token = self.word(name)
-        try:
-            value = int(token)
-        except ValueError:
-            raise self.error(name, "a count (a whole number >= 0)", token) from None
-        if value < 0:
-            raise self.error(name, "a count (a whole number >= 0)", token)
-        return value
-
-    def numbers(self, n: int, prefix: str) -> np.ndarray:
-        """n numbers named prefix1 … prefixn."""
-        chunk = self.tokens[self.pos : self.pos + n]
-        if len(chunk) < n:
-            raise self._missing(f"{prefix}{len(chunk) + 1}")
-        try:
-            values = np.fromiter(map(float, chunk), dtype=np.float64, count=n)
-        except ValueError:
-            for k, token in enumerate(chunk):
-                try:
-                    float(token)
-                except ValueError:
-                    raise self.error(f"{prefix}{k + 1}", "a number", token) from None
-            raise
-        self.pos += n
-        self.last = f"{prefix}{n}" if n else self.last
-        return values
-
-    def timestamp(self) -> float:
-        """`ipc_hostname [logger_timestamp]` after the ipc timestamp: the time to use."""
-        ipc = self.number("ipc_timestamp")
-        self.word("ipc_hostname")
-        logger = self.number("logger_timestamp") if self.pos < len(self.tokens) else ipc
-        if self.pos < len(self.tokens):
-            raise CarmenFormatError(
-                f"{self.where}: {self.tag}: {len(self.tokens) - self.pos} field(s) after field "
-                f"'{self.last}', the last one, starting with {self.tokens[self.pos]!r}"
-            )
-        return logger
-
-
 @dataclass
 class _Scans:
     """One message type's scans as they are read, with the checks that keep a stream regular."""
@@ -320,7 +203,7 @@ class _Reader:
         self.skipped: dict[str, int] = {}
         self.last_laser: tuple[tuple[float, ...], tuple[float, ...]] | None = None
         self.laser_before = self.last_laser
-        self.handlers: dict[str, Callable[[_Line], None]] = {
+        self.handlers: dict[str, Callable[[LineFields], None]] = {
             "FLASER": self.old_laser,
             "RLASER": self.old_laser,
             "ROBOTLASER1": self.robot_laser,
@@ -339,9 +222,9 @@ class _Reader:
             self.last_laser = None
             return
         self.laser_before, self.last_laser = self.last_laser, None
-        handler(_Line(f"{self.path}:{lineno}", tokens))
+        handler(LineFields(f"{self.path}:{lineno}", tokens))
 
-    def _scans(self, line: _Line, count_field: str, n: int) -> _Scans:
+    def _scans(self, line: LineFields, count_field: str, n: int) -> _Scans:
         scans = self.scans.get(line.tag)
         if scans is None:
             scans = self.scans[line.tag] = _Scans(line.tag, line.where, n)
@@ -363,14 +246,14 @@ class _Reader:
         scans.odom_index.append(len(self.odom_times))
         self.last_laser = (laser, odom)
 
-    def old_laser(self, line: _Line) -> None:
+    def old_laser(self, line: LineFields) -> None:
         n = line.count("n")
         ranges = line.numbers(n, "r")
         values = tuple(line.number(name) for name in _OLD_LASER_FIELDS)
         scans = self._scans(line, "n", n)
         self._add(scans, line.timestamp(), ranges, values[:3], values[3:])
 
-    def robot_laser(self, line: _Line) -> None:
+    def robot_laser(self, line: LineFields) -> None:
         line.number("laser_type")
         start = line.number("start_angle")
         line.number("field_of_view")
@@ -393,14 +276,14 @@ class _Reader:
                 raise line.error(name, f"{first} like the stream's first scan", value)
         self._add(scans, line.timestamp(), ranges, values[:3], values[3:6])
 
-    def odom(self, line: _Line) -> None:
+    def odom(self, line: LineFields) -> None:
         pose = tuple(line.number(name) for name in _ODOM_FIELDS)[:3]
         self.odom_times.append(line.timestamp())
         self.odom_poses.append(pose)
         # an echo repeats the laser line just before it (its laser or its robot pose)
         self.odom_echo.append(self.laser_before is not None and pose in self.laser_before)
 
-    def param(self, line: _Line) -> None:
+    def param(self, line: LineFields) -> None:
         name = line.word("name")
         line.word("value")
         # name value ipc_timestamp ipc_hostname logger_timestamp; a value may hold spaces, and
@@ -478,77 +361,3 @@ def read_carmen_log(path: str | os.PathLike[str]) -> CarmenLog:
         params=reader.params,
         skipped=dict(sorted(reader.skipped.items())),
     )
-
-
-def _laser(log: CarmenLog, which: str) -> LaserStream:
-    stream = {"front": log.front, "rear": log.rear}.get(which)
-    if stream is None or stream.num_scans == 0:
-        raise ValueError(f"{log.path}: no {which} laser scans (stream must be 'front' or 'rear')")
-    return stream
-
-
-def odometry_at(log: CarmenLog, times: np.ndarray) -> np.ndarray:
-    """ODOM poses interpolated at `times` (T,): float64 (T, 3), θ wrapped to (-π, π].
-
-    x, y are linear in time, θ follows the shorter way round the circle. Echo lines (module
-    doc) are left out; the rest are ordered by timestamp (intel's jitter by up to 0.9 s against
-    the file order), lines with equal times resolve to the last in the file, and times outside
-    the ODOM stream get its first / last pose. In a corrected log the result stays close to
-    the corrected path; see `scan_odometry` for the wheel odometry.
-    """
-    keep = ~log.odometry.echo
-    stamps, poses = log.odometry.times[keep], log.odometry.poses[keep]
-    if len(stamps) == 0:
-        raise ValueError(f"{log.path}: no ODOM lines to interpolate")
-    order = np.argsort(stamps, kind="stable")
-    stamps, poses = stamps[order], poses[order]
-    last = np.append(stamps[1:] != stamps[:-1], True)  # of each run of equal times
-    stamps, poses = stamps[last], poses[last]
-    query = np.asarray(times, dtype=np.float64)
-    if query.ndim != 1:
-        raise ValueError(f"times must have shape (T,), got {query.shape}")
-    i = np.clip(np.searchsorted(stamps, query, side="right") - 1, 0, len(stamps) - 1)
-    j = np.minimum(i + 1, len(stamps) - 1)
-    span = stamps[j] - stamps[i]
-    w = np.divide(query - stamps[i], span, out=np.zeros_like(query), where=span > 0)
-    w = np.clip(w, 0.0, 1.0)
-    out = np.empty((len(query), 3))
-    out[:, :2] = poses[i, :2] + w[:, None] * (poses[j, :2] - poses[i, :2])
-    out[:, 2] = wrap_angle(poses[i, 2] + w * wrap_angle(poses[j, 2] - poses[i, 2]))
-    return out
-
-
-def _relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pose b in the frame of pose a."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    return np.array([c * dx + s * dy, -s * dx + c * dy, b[2] - a[2]])
-
-
-def _compose(a: np.ndarray, u: np.ndarray) -> np.ndarray:
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return np.array([a[0] + c * u[0] - s * u[1], a[1] + s * u[0] + c * u[1], a[2] + u[2]])
-
-
-def scan_odometry(log: CarmenLog, stream: str = "front") -> np.ndarray:
-    """Wheel odometry at each scan of a corrected log, float64 (N, 3), θ in (-π, π].
-
-    A corrected log's ODOM lines restart from each scan's corrected robot pose (module doc),
-    so the last ODOM line before scan k+1 is scan k's pose moved by the wheels' motion between
-    the scans. Chaining those increments from the first scan's robot pose gives the odometry
-    with its drift, in the frame `drive_trajectory` uses (odometry[0] == truth[0]). Scans with
-    no ODOM line since the previous one add no motion.
-    """
-    laser = _laser(log, stream)
-    real = np.flatnonzero(~log.odometry.echo)
-    before = np.searchsorted(real, laser.odom_index, side="left")  # real ODOM lines before
-    anchors = laser.odom_poses
-    out = np.empty((laser.num_scans, 3))
-    out[0] = anchors[0]
-    for k in range(1, laser.num_scans):
-        step = np.zeros(3)
-        if before[k] > before[k - 1]:
-            step = _relative(anchors[k - 1], log.odometry.poses[real[before[k] - 1]])
-        out[k] = _compose(out[k - 1], step)
-    out[:, 2] = wrap_angle(out[:, 2])
-    return out

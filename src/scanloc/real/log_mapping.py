@@ -197,7 +197,11 @@ def build_map_from_log(
         float(clamp[0]),
         float(clamp[1]),
     )
-    p = 1.0 - 1.0 / (1.0 + np.exp(logodds.astype(np.float64)))
+    # e^l through libm, one value at a time: numpy's AVX-512 exp differs from its AVX2 (libm)
+    # one in the last bits, and the map must not depend on the CPU (few distinct l values).
+    levels, which = np.unique(logodds.astype(np.float64), return_inverse=True)
+    odds = np.array([math.exp(level) for level in levels.tolist()], dtype=np.float64)
+    p = (1.0 - 1.0 / (1.0 + odds))[which.reshape(logodds.shape)]
     cells = np.full((height, width), UNKNOWN, dtype=np.int8)
     cells[seen & (p > occupied_thresh)] = OCCUPIED
     cells[seen & (p < free_thresh)] = FREE

@@ -18,7 +18,8 @@ import numpy as np
 
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.noise import NoiseModel, NoNoise
-from scanloc.sensor.raycast import CastMap, cast_exact, cast_stdr
+from scanloc.sensor.raycast import CastMap, cast_exact
+from scanloc.sensor.raycast_stdr import cast_stdr
 from scanloc.world.occupancy_grid import OccupancyGrid
 
 __all__ = [

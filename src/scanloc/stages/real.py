@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from scanloc.real.carmen import clean_ranges, laser_spec, read_carmen_log, scan_odometry
+from scanloc.real.carmen import read_carmen_log
+from scanloc.real.carmen_laser import clean_ranges, laser_spec
+from scanloc.real.carmen_odometry import scan_odometry, wrap_logged_headings
 from scanloc.real.log_mapping import build_map_from_log, save_log_map
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.noise import noise_from_config
@@ -49,7 +51,7 @@ def main(cfg: DictConfig) -> None:
             stream.num_scans if cfg.max_scans is None else min(int(cfg.max_scans), stream.num_scans)
         )
         truth = np.ascontiguousarray(stream.laser_poses[:count], dtype=np.float64)
-        truth[:, 2] = np.angle(np.exp(1j * truth[:, 2]))  # corrected headings stray past ±π
+        truth[:, 2] = wrap_logged_headings(truth[:, 2])
         ranges = clean_ranges(stream.ranges[:count], spec.range_max, spec.no_return_value)
         # Mapping: a beam with no return says nothing reliable (glass, open doors, the sensor's
         # limit), and clearing free space along all 50 m of it would open the map to its border.
