@@ -1,30 +1,37 @@
 """The claim-by-claim verdict rules of the report, with the thresholds of conf/report.yaml: each
-claim is driven to each of its outcomes by artifacts built for it."""
+claim is driven to each of its outcomes by artifacts built for it, and, with the seed spread
+measured for the laptop profile, to "inconclusive" where its margin lies inside the spread."""
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 import pytest
 import yaml
 
-from scanloc.report.claims import (
+from scanloc.report.artifacts import TrainingRun
+from scanloc.report.claims import CLAIMS, check_claims
+from scanloc.report.verdicts import (
     DIRECTION_ONLY,
+    INCONCLUSIVE,
     NOT_REPRODUCED,
     NOT_TESTABLE,
     REPRODUCED,
-    VERDICT_LEGEND,
-    Run,
-    check_claims,
+    ClaimConfig,
+    compare,
     verdict,
 )
 
-THRESHOLDS = yaml.safe_load(
+REPORT_CFG = yaml.safe_load(
     (Path(__file__).resolve().parents[1] / "conf" / "report.yaml").read_text()
-)["claims"]
+)
+THRESHOLDS = REPORT_CFG["claims"]
+NO_SPREAD = ClaimConfig.from_config(REPORT_CFG, "smoke")  # no seed spread measured there
+LAPTOP = ClaimConfig.from_config(REPORT_CFG, "laptop")
 
 
 def _run(
@@ -34,22 +41,22 @@ def _run(
     samples: int = 20000,
     curve: np.ndarray | None = None,
     device: dict | None = None,
-) -> Run:
+) -> TrainingRun:
     curve = np.array([val]) if curve is None else np.asarray(curve, dtype=float)
     history = pd.DataFrame({"epoch": np.arange(1, len(curve) + 1), "val_mae": curve})
     history["train_mae"] = curve if train is None else train
     metrics = {"val_mae": val, "epoch_s": epoch_s}
     if device is not None:
         metrics["device"] = device
-    return Run(history, metrics, {"samples": samples, "batch_size": 100})
+    return TrainingRun(history, metrics, {"samples": samples, "batch_size": 100})
 
 
-def _verdicts(runs: dict, metrics: dict | None = None) -> dict[int, str]:
-    return {c.number: c.verdict for c in check_claims(runs, metrics or {}, THRESHOLDS)}
+def _inputs(runs: dict, metrics: dict | None = None) -> SimpleNamespace:
+    return SimpleNamespace(runs=runs, paper_metrics=metrics or {})
 
 
-def _claim(number: int, runs: dict, metrics: dict | None = None):
-    return check_claims(runs, metrics or {}, THRESHOLDS)[number - 1]
+def _claim(number: int, runs: dict, metrics: dict | None = None, config=NO_SPREAD):
+    return check_claims(_inputs(runs, metrics), config)[number - 1]
 
 
 def test_verdict_combines_direction_and_numbers() -> None:
@@ -57,7 +64,11 @@ def test_verdict_combines_direction_and_numbers() -> None:
     assert verdict(True, []) == REPRODUCED  # a purely directional claim
     assert verdict(True, [True, False]) == DIRECTION_ONLY
     assert verdict(False, [True]) == NOT_REPRODUCED
-    assert set(VERDICT_LEGEND) == {REPRODUCED, DIRECTION_ONLY, NOT_REPRODUCED, NOT_TESTABLE}
+    # None: a comparison inside the seed spread, which could go either way.
+    assert verdict(None, [True]) == INCONCLUSIVE
+    assert verdict(True, [True, None]) == INCONCLUSIVE
+    assert verdict(True, [False, None]) == DIRECTION_ONLY  # one number fails clearly
+    assert verdict(False, [None]) == NOT_REPRODUCED  # the direction fails clearly
 
 
 def test_claim_1_needs_a_clear_margin_and_the_mlps_number() -> None:
@@ -163,12 +174,85 @@ def test_claim_7_tests_the_075_m_gap() -> None:
 
 
 def test_all_claims_in_order_and_every_threshold_is_in_the_config() -> None:
-    claims = check_claims({}, {}, THRESHOLDS)
-    assert [c.number for c in claims] == list(range(1, 8))
+    claims = check_claims(_inputs({}), NO_SPREAD)
+    assert [c.number for c in claims] == [c.number for c in CLAIMS] == list(range(1, 8))
     assert all(c.verdict == NOT_TESTABLE for c in claims)
     for claim in claims:  # the rule states the config's numbers
         for key, value in THRESHOLDS[f"claim{claim.number}"].items():
             if isinstance(value, (int, float)) and key != "margin_source":
                 assert f"{value:g}" in claim.rule, (claim.number, key)
+    no_claim3 = {k: v for k, v in THRESHOLDS.items() if k != "claim3"}
     with pytest.raises(KeyError, match=r"claims\.claim3"):
-        check_claims({}, {}, {k: v for k, v in THRESHOLDS.items() if k != "claim3"})
+        check_claims(_inputs({}), ClaimConfig(no_claim3, None, "smoke"))
+
+
+# ---------------------------------------------------------------- inside the seed spread
+
+
+def test_a_margin_inside_the_spread_cannot_tell() -> None:
+    band = LAPTOP.spread.band
+    assert band == pytest.approx(2 * 0.276 * math.sqrt(2))  # conf/report.yaml, laptop
+    assert compare(0.4 + band * 0.99, 0.4, LAPTOP.spread) is None
+    assert compare(0.4 - band * 0.99, 0.4, LAPTOP.spread) is None
+    assert compare(0.4 + band * 1.01, 0.4, LAPTOP.spread) is True
+    assert compare(0.4 - band * 1.01, 0.4, LAPTOP.spread) is False
+    assert compare(0.39, 0.4, None) is False  # no spread: the threshold alone decides
+
+
+def test_claim_1_margin_inside_the_spread_is_inconclusive() -> None:
+    # The bf16 machine's run: the 200k net's margin over the MLP 0.377, against 0.4.
+    close = {"mlp": _run(2.45), "cnn1d_20k": _run(1.2), "cnn1d_200k": _run(2.45 - 0.377)}
+    assert _claim(1, close).verdict == NOT_REPRODUCED  # without a spread: the threshold decides
+    claim = _claim(1, close, config=LAPTOP)
+    assert claim.verdict == INCONCLUSIVE and "inside the seed spread" in claim.ours
+    assert "±0.78" in claim.rule
+    # Margins well outside the spread keep their verdicts.
+    clear = close | {"cnn1d_200k": _run(0.4)}
+    assert _claim(1, clear, config=LAPTOP).verdict == REPRODUCED
+    far_below = close | {"cnn1d_200k": _run(2.45 + 0.5)}
+    assert _claim(1, far_below, config=LAPTOP).verdict == NOT_REPRODUCED
+
+
+def test_claims_2_5_6_use_the_spread_for_their_margins() -> None:
+    runs = {"cnn1d_20k": _run(0.4), "cnn1d_200k": _run(2.0)}
+    near_gap = runs | {"cnn2d": _run(0.4 + 0.55, train=0.4 + 1.5)}  # Δval 0.55 against 0.5
+    assert _claim(2, near_gap).verdict == REPRODUCED
+    assert _claim(2, near_gap, config=LAPTOP).verdict == INCONCLUSIVE
+    wide = runs | {"cnn2d": _run(0.4 + 1.5, train=0.4 + 1.6)}
+    assert _claim(2, wide, config=LAPTOP).verdict == REPRODUCED
+    small = _run(0.6)
+    assert _claim(
+        5, {"cnn1d_20k": small, "cnn1d_200k": _run(0.15, 0.14)}, config=LAPTOP
+    ).verdict == (
+        INCONCLUSIVE  # a margin of 0.45 against 0.4
+    )
+    markedly = {"cnn1d_20k": _run(1.5), "cnn1d_200k": _run(0.15, 0.14)}
+    assert _claim(5, markedly, config=LAPTOP).verdict == REPRODUCED
+    slow = np.array([3.0, 2.9, 2.8, 2.7, 2.0, 1.8, 1.6, 1.5])
+    fast = slow - 0.1  # faster early, but by far less than the spread
+    runs6 = {"cnn1d_20k": _run(0.3), "transfer/scratch": _run(1.5, curve=slow)}
+    assert _claim(6, runs6 | {"transfer/pretrained": _run(1.4, curve=fast)}).verdict == REPRODUCED
+    inside = runs6 | {"transfer/pretrained": _run(1.4, curve=fast)}
+    assert _claim(6, inside, config=LAPTOP).verdict == INCONCLUSIVE
+    outside = runs6 | {"transfer/pretrained": _run(1.4, curve=slow - 1.5)}
+    assert _claim(6, outside, config=LAPTOP).verdict == REPRODUCED
+
+
+def test_epoch_times_and_localization_errors_have_no_spread() -> None:
+    small = _run(0.4, epoch_s=5.0, samples=20000)
+    for seconds in (55.0, 150.0, 4.0):
+        runs = {"cnn1d_20k": small, "cnn1d_200k": _run(0.2, epoch_s=seconds, samples=200000)}
+        assert _claim(4, runs, config=LAPTOP).verdict == _claim(4, runs).verdict
+    close = _localization(0.05, 0.125, 0.1, (0.05, 0.01))
+    assert _claim(7, {}, close, config=LAPTOP).verdict == REPRODUCED
+
+
+def test_a_seed_spread_in_the_config_is_checked() -> None:
+    spread = REPORT_CFG["seed_spread"]["laptop"]
+    without_sd = REPORT_CFG | {"seed_spread": {"laptop": {"source": spread["source"]}}}
+    with pytest.raises(KeyError, match=r"seed_spread\.laptop\.val_mae_sd"):
+        ClaimConfig.from_config(without_sd, "laptop")
+    negative = REPORT_CFG | {"seed_spread": {"laptop": spread | {"val_mae_sd": -0.1}}}
+    with pytest.raises(ValueError, match=r"val_mae_sd.*positive"):
+        ClaimConfig.from_config(negative, "laptop")
+    assert ClaimConfig.from_config(REPORT_CFG, "paper").spread is None

@@ -14,7 +14,8 @@ import yaml
 from omegaconf import OmegaConf
 
 from scanloc.io import write_json
-from scanloc.report.compare import BEST_MARK, marked_row, multirun_runs, write_compare
+from scanloc.report.compare import BEST_MARK, marked_row, write_compare
+from scanloc.report.compare_runs import multirun_runs
 from scanloc.stages.compare import load_runs
 from test_report import _chromium, render_in_chromium
 

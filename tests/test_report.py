@@ -1,5 +1,7 @@
-"""The report: built from a small fabricated artifact tree, checked for structure, offline
-self-containment, determinism, missing artifacts, and rendered in a real headless Chromium."""
+"""The report: built from a small fabricated artifact tree, checked for structure (the
+registry's sections in order, the same in HTML and Markdown), offline self-containment,
+determinism, missing artifacts, the localizer catalog as the source of its lists, the
+inconclusive verdict, the provenance's '+dirty', and rendered in a real headless Chromium."""
 
 from __future__ import annotations
 
@@ -21,8 +23,9 @@ import yaml
 
 from scanloc.estimates import TABLE_COLUMNS
 from scanloc.evaluate.table2 import evaluate_runs
-from scanloc.report import build as report_build
-from scanloc.report.build import SECTIONS, build_report
+from scanloc.report.build import build_report
+from scanloc.report.sections.registry import SECTIONS
+from scanloc.stages.report import git_commit
 from scanloc.trajectory.format import Trajectory, save_trajectory
 from scanloc.world.map_server import save_map
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid
@@ -34,9 +37,9 @@ CONTEXT = {
     "git_commit": "abc123",
     "maps": ["sparse_obstacles", "simple_rooms"],
 }
-THRESHOLDS = yaml.safe_load((Path(__file__).resolve().parents[1] / "conf/report.yaml").read_text())[
-    "claims"
-]
+REPO_ROOT = Path(__file__).resolve().parents[1]
+REPORT_CFG = yaml.safe_load((REPO_ROOT / "conf/report.yaml").read_text())
+LOCALIZER_CONF = REPO_ROOT / "conf/localizer"
 SENSOR = {"num_beams": 667, "angle_min": -2.09439510239, "angle_max": 2.09439510239}
 SENSOR |= {"range_min": 0.02, "range_max": 5.6, "no_return_value": 7.0}
 
@@ -166,20 +169,57 @@ def make_artifacts(root: Path) -> Path:
     return root
 
 
+def build(root: Path, context: dict, localizer_conf: Path = LOCALIZER_CONF) -> dict:
+    """The report of the artifacts under `root`, written to <root>/reports/."""
+    return build_report(root, root / "reports", context, REPORT_CFG, localizer_conf)
+
+
 @pytest.fixture(scope="module")
 def built(tmp_path_factory) -> Path:
     root = make_artifacts(tmp_path_factory.mktemp("artifacts"))
-    build_report(root, root / "reports", CONTEXT, THRESHOLDS)
+    build(root, CONTEXT)
     return root
 
 
 # ---------------------------------------------------------------- structure
 
 
-def test_report_has_all_sections_and_embedded_pngs(built: Path) -> None:
+def registry_headings(maps: list[str]) -> list[tuple[str, str]]:
+    """(id, title) of every section the registry makes for `maps`, in its order."""
+    headings = []
+    for spec in SECTIONS:
+        for name in maps if "{name}" in spec.id else [""]:
+            headings.append((spec.id.format(name=name), spec.title.format(name=name)))
+    return headings
+
+
+def headings(text: str) -> list[tuple[str, str]]:
+    return [(i, html.unescape(t)) for i, t in re.findall(r'<h2 id="([^"]+)">([^<]*)</h2>', text)]
+
+
+def test_report_shows_the_registrys_sections_in_order_in_both_renderings(built: Path) -> None:
     page = (built / "reports/report.html").read_text(encoding="utf-8")
-    for section_id, title in SECTIONS:
-        assert f'<h2 id="{section_id}">{title}</h2>' in page
+    md = (built / "reports/report.md").read_text(encoding="utf-8")
+    expected = registry_headings(CONTEXT["maps"])
+    assert headings(page) == expected
+    assert headings(md) == expected
+    assert re.findall(r'<a href="#([^"]+)">', page) == [i for i, _ in expected]  # the nav
+
+
+def test_the_registry_alone_decides_which_sections_and_in_what_order(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    root = make_artifacts(tmp_path)
+    chosen = [spec for spec in SECTIONS if spec.id in ("table-2", "provenance")][::-1]
+    monkeypatch.setattr("scanloc.report.build.SECTIONS", tuple(chosen))
+    build(root, CONTEXT)
+    page = (root / "reports/report.html").read_text(encoding="utf-8")
+    assert headings(page) == [("provenance", "Provenance"), ("table-2", "Table 2")]
+    assert "<img" not in page and not list((root / "reports/figures").glob("*.png"))
+
+
+def test_report_embeds_every_figure_as_a_png(built: Path) -> None:
+    page = (built / "reports/report.html").read_text(encoding="utf-8")
     uris = re.findall(r'<img src="data:image/png;base64,([^"]+)"', page)
     assert len(uris) >= 6 and len(uris) == page.count("<img")
     for uri in uris:
@@ -222,8 +262,6 @@ def test_report_content(built: Path) -> None:
         6: "reproduced",
         7: "direction only",
     }
-    for meaning in report_build.VERDICT_LEGEND.values():
-        assert html.escape(meaning) in page
     # beyond the paper: the learned localizer's figures per map, kidnaps, one section per map
     learned = page.split('id="learned-localizer"', 1)[1].split("<h2", 1)[0]
     assert "<td>sparse_obstacles</td><td>222</td><td>302</td><td>375,000</td>" in learned
@@ -233,8 +271,6 @@ def test_report_content(built: Path) -> None:
     for name in CONTEXT["maps"]:
         assert f'<h2 id="map-{name}">Map {name}</h2>' in page
     md = (built / "reports/report.md").read_text(encoding="utf-8")
-    for section_id, title in SECTIONS:
-        assert f'<h2 id="{section_id}">{title}</h2>' in md
     images = re.findall(r"!\[[^\]]*\]\((figures/[^)]+\.png)\)", md)
     assert len(images) >= 6 and all((built / "reports" / img).is_file() for img in images)
     assert "| amcl |" in md and "| cnn_ensemble |" in md
@@ -243,7 +279,7 @@ def test_report_content(built: Path) -> None:
 def test_report_is_byte_deterministic(built: Path) -> None:
     first = (built / "reports/report.html").read_bytes()
     figures = {p.name: p.read_bytes() for p in (built / "reports/figures").glob("*.png")}
-    build_report(built, built / "reports", CONTEXT, THRESHOLDS)
+    build(built, CONTEXT)
     assert (built / "reports/report.html").read_bytes() == first
     assert {p.name: p.read_bytes() for p in (built / "reports/figures").glob("*.png")} == figures
 
@@ -253,7 +289,7 @@ def test_missing_optional_artifacts_are_reported(tmp_path: Path) -> None:
     (root / "reports/localize_cnn/sparse_obstacles_drive/cnn_ensemble.csv").unlink()
     shutil.rmtree(root / "models/transfer")
     shutil.rmtree(root / "data/maps/simple_rooms")
-    build_report(root, root / "reports", {"profile": "smoke"}, THRESHOLDS)
+    build(root, {"profile": "smoke"})
     page = (root / "reports/report.html").read_text(encoding="utf-8")
     assert "Not available: cnn_ensemble" in page
     assert "Transfer runs (models/transfer/) not available." in page
@@ -266,16 +302,134 @@ def test_missing_required_artifacts_name_the_file(tmp_path: Path) -> None:
     root = make_artifacts(tmp_path)
     (root / "data/trajectories/sparse_obstacles_drive/truth.npy").unlink()
     with pytest.raises(FileNotFoundError, match=r"truth\.npy"):
-        build_report(root, root / "reports", CONTEXT, THRESHOLDS)
+        build(root, CONTEXT)
     root2 = make_artifacts(tmp_path / "second")
     (root2 / "reports/metrics/train_cnn2d.json").unlink()
     with pytest.raises(FileNotFoundError, match=r"train_cnn2d\.json"):
-        build_report(root2, root2 / "reports", CONTEXT, THRESHOLDS)
+        build(root2, CONTEXT)
     amcl_csv = root2 / "reports/localize/sparse_obstacles_drive/amcl.csv"
     pd.read_csv(amcl_csv).iloc[:-1].to_csv(amcl_csv, index=False)
     (root2 / "reports/metrics/train_cnn2d.json").write_text("{}")
     with pytest.raises(ValueError, match=r"amcl\.csv"):
-        build_report(root2, root2 / "reports", CONTEXT, THRESHOLDS)
+        build(root2, CONTEXT)
+
+
+# ---------------------------------------------------------------- verdicts and their legend
+
+
+def table_rows(section_html: str, cells: int) -> list[tuple[str, list[str]]]:
+    """(row class, cells) of the rows with `cells` cells of a section's tables."""
+    rows = re.findall(r'<tr class="([a-z-]+)">(.*?)</tr>', section_html)
+    found = [(cls, re.findall(r"<td>(.*?)</td>", row)) for cls, row in rows]
+    return [(cls, row) for cls, row in found if len(row) == cells]
+
+
+def claims_section(page: str) -> str:
+    return page.split('id="paper-claims"', 1)[1].split("<h2", 1)[0]
+
+
+def test_each_claim_row_is_coloured_as_its_verdicts_legend_entry(built: Path) -> None:
+    section = claims_section((built / "reports/report.html").read_text(encoding="utf-8"))
+    legend = {row[0]: cls for cls, row in table_rows(section, 2)}
+    assert len(legend) == 5 and len(set(legend.values())) == 5  # five verdicts, five colours
+    claims = table_rows(section, 6)
+    assert len(claims) == 7
+    for cls, row in claims:
+        assert legend[row[4]] == cls, row[0]
+
+
+def test_a_measured_seed_spread_makes_close_margins_inconclusive(tmp_path: Path) -> None:
+    root = make_artifacts(tmp_path)
+    build(root, CONTEXT)
+    smoke = (root / "reports/report.html").read_text(encoding="utf-8")
+    # At the smoke profile no spread is measured: the legend says so, no claim is inconclusive.
+    assert "no σ_seed is measured for profile &#x27;smoke&#x27;" in claims_section(smoke)
+    assert "inconclusive" not in claim_verdicts(smoke).values()
+    headline = build(root, CONTEXT | {"profile": "laptop"})
+    page = (root / "reports/report.html").read_text(encoding="utf-8")
+    laptop = claims_section(page)
+    sd = REPORT_CFG["seed_spread"]["laptop"]["val_mae_sd"]
+    band = REPORT_CFG["inconclusive_sigmas"] * sd * 2**0.5
+    assert f"· {sd:g} · √2 = {band:.2f}" in laptop
+    # Claim 2's Δtrain 0.78 lies 0.08 from its 0.7, claim 5's margin 0.28 lies 0.12 from its
+    # 0.4 and claim 6's map-2 margin 0.41 lies 0.41 from 0: all inside ±0.78. Claim 1's margins
+    # (2.08, 2.36 against 0.4) and claim 3's (0.80 against 0) lie outside and keep their
+    # verdicts; claims 4 and 7 compare epoch times and localization errors, without a spread.
+    assert claim_verdicts(page) == {
+        1: "reproduced",
+        2: "inconclusive",
+        3: "reproduced",
+        4: "reproduced",
+        5: "inconclusive",
+        6: "inconclusive",
+        7: "direction only",
+    }
+    assert headline["claims_inconclusive"] == 3 and headline["claims_reproduced"] == 3
+    assert "inconclusive: 2, 5, 6" in page  # the summary under the title
+
+
+# ---------------------------------------------------------------- the localizer catalog
+
+
+def copy_catalog(tmp_path: Path, edits: dict[str, dict]) -> Path:
+    """conf/localizer copied, with `edits` ({config: {key: value}}) applied."""
+    conf = tmp_path / "localizer"
+    shutil.copytree(LOCALIZER_CONF, conf)
+    for name, changes in edits.items():
+        cfg = yaml.safe_load((conf / f"{name}.yaml").read_text())
+        (conf / f"{name}.yaml").write_text(yaml.safe_dump(cfg | changes))
+    return conf
+
+
+def section_html(page: str, section_id: str) -> str:
+    return page.split(f'id="{section_id}"', 1)[1].split("<h2", 1)[0]
+
+
+def test_notes_and_the_global_table_come_from_the_localizer_catalog(tmp_path: Path) -> None:
+    root = make_artifacts(tmp_path)
+    build(root, CONTEXT)
+    page = (root / "reports/report.html").read_text(encoding="utf-8")
+    assert "<td>sparse_obstacles</td><td>amcl</td>" in section_html(page, "global-localization")
+    conf = copy_catalog(
+        tmp_path, {"amcl": {"global_table": False}, "cnn_single": {"note": "a test's own note"}}
+    )
+    build(root, CONTEXT, conf)
+    page = (root / "reports/report.html").read_text(encoding="utf-8")
+    assert "<td>cnn_single</td><td>a test&#x27;s own note</td>" in section_html(
+        page, "localization"
+    )
+    assert "<td>amcl</td>" not in section_html(page, "global-localization")
+
+
+# ---------------------------------------------------------------- provenance: '+dirty'
+
+
+def _git(repo: Path, *args: str) -> None:
+    subprocess.run(["git", *args], cwd=repo, check=True, capture_output=True)
+
+
+def test_dirty_means_a_changed_source_not_dvc_lock_or_outputs(tmp_path: Path) -> None:
+    repo = tmp_path / "repo"
+    for path in ("src/scanloc/x.py", "conf/report.yaml", "dvc.yaml", "dvc.lock", "README.md"):
+        (repo / path).parent.mkdir(parents=True, exist_ok=True)
+        (repo / path).write_text("one\n")
+    _git(repo, "init", "-q")
+    _git(repo, "add", ".")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", "first")
+    paths = REPORT_CFG["source_paths"]
+    clean = git_commit(repo, paths)
+    assert clean is not None and re.fullmatch(r"[0-9a-f]{40}", clean)
+    (repo / "dvc.lock").write_text("rewritten by dvc repro\n")  # as while the stage runs
+    (repo / "reports").mkdir()
+    (repo / "reports/report.md").write_text("an untracked DVC output\n")
+    (repo / "README.md").write_text("docs do not change results\n")
+    assert git_commit(repo, paths) == clean
+    for source in ("src/scanloc/x.py", "conf/report.yaml", "dvc.yaml"):
+        (repo / source).write_text("two\n")
+        assert git_commit(repo, paths) == clean + "+dirty", source
+        (repo / source).write_text("one\n")
+    assert git_commit(repo, paths) == clean
+    assert git_commit(tmp_path, paths) is None  # not a git checkout
 
 
 # ---------------------------------------------------------------- real browser
@@ -421,9 +575,7 @@ def test_report_renders_offline_in_chromium(built: Path, tmp_path: Path) -> None
     assert all(complete and width > 0 and height > 0 for complete, width, height, _ in images)
     assert all(shown <= 1100 for *_, shown in images)  # scaled to the column, no overflow
     assert found["scrollWidth"] <= 1366  # no horizontal scrolling on a laptop screen
-    fixed = [section_id for section_id, _ in SECTIONS]
-    per_map = [f"map-{name}" for name in CONTEXT["maps"]]
-    assert found["sections"] == fixed[:-1] + per_map + fixed[-1:]
+    assert found["sections"] == [i for i, _ in registry_headings(CONTEXT["maps"])]
     remote = [u for u in found["requests"] if not u.startswith(("file:", "data:", "about:"))]
     assert remote == []
     assert not [m for m in found["messages"] if "Content Security Policy" in m]

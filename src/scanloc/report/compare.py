@@ -1,33 +1,33 @@
 """An offline page that compares two or more runs: DVC experiments (or git revisions) of the
-repository, or the jobs of one Hydra multirun.
+repository, or the jobs of one Hydra multirun (read by compare_runs.py).
 
-Nothing is re-run. A DVC experiment's artifacts are read at its revision through DVC's file
-system (git-tracked files from the commit, DVC outputs from the cache); a multirun job's from
-its folder, where the stages wrote them (stages/_app.py). The page has four sections: the
-parameters that differ, the headline metrics side by side (report/summary.py) with the better
-value marked, the learning curves of every Table 1 row overlaid (paper Fig. 7), and the
-position error along the map-1 drive of each localizer overlaid. An artifact a run lacks is
-said in its section; it is not an error. compare.html is self-contained, compare.md shows the
-same figures from figures/ beside it (report/document.py).
+The page has four sections: the parameters that differ, the headline metrics side by side
+(report/summary.py) with the better value marked, the learning curves of every Table 1 row
+overlaid (paper Fig. 7), and the position error along the map-1 drive of each localizer
+overlaid. An artifact a run lacks is said in its section; it is not an error. compare.html is
+self-contained, compare.md shows the same figures from figures/ beside it (render/document.py).
 """
 
 from __future__ import annotations
 
-import io
 import json
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
-import yaml
 
-from scanloc.evaluate.metrics import check_table
 from scanloc.io import atomic_path
-from scanloc.report import figures
-from scanloc.report.document import (
+from scanloc.report.compare_runs import (
+    SUMMARY_JSON,
+    ComparedRun,
+    drive_errors,
+    headline,
+    history,
+)
+from scanloc.report.paper import PAPER_DRIVE, ROWS
+from scanloc.report.render import figures
+from scanloc.report.render.document import (
     Builder,
     Para,
     Section,
@@ -35,203 +35,12 @@ from scanloc.report.document import (
     render_html,
     render_markdown,
 )
-from scanloc.report.summary import PAPER_DRIVE, TABLE1_ROWS
-from scanloc.sweep_summary import job_folders, parse_overrides
 
-SUMMARY_JSON = "reports/summary.json"
 BEST_MARK = "★"
 # Which way is better, by headline key prefix (summary.py); claims_* counts are not marked.
 LOWER_IS_BETTER = ("pos_", "lost_", "conv_", "rec_", "t1_", "real_rmse_")
 HIGHER_IS_BETTER = ("top5_", "real_top5_")
-HISTORY_COLUMNS = ("epoch", "train_mae", "val_mae")
 MISSING = "—"
-
-
-@dataclass(frozen=True)
-class Run:
-    """One run to compare: its label, its parameters ({name: value}, flat) and a reader of its
-    artifacts by repository-relative path (None where the run has no such file); `where` says
-    where a path was read from, for error messages."""
-
-    label: str
-    params: Mapping[str, Any]
-    read: Callable[[str], bytes | None]
-    where: Callable[[str], str]
-
-
-# ---------------------------------------------------------------- loading runs
-
-
-def flatten(obj: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Nested mappings as one level, keys joined with `.` (lists stay values)."""
-    out: dict[str, Any] = {}
-    for key, value in obj.items():
-        if isinstance(value, Mapping) and value:
-            out |= flatten(value, f"{prefix}{key}.")
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
-
-
-def multirun_runs(folder: Path) -> list[Run]:
-    """The jobs of a Hydra multirun folder, by job number; parameters: each job's overrides
-    (.hydra/overrides.yaml)."""
-    if not folder.is_dir():
-        raise FileNotFoundError(f"multirun: {folder}: no such folder")
-    jobs = [job for job in job_folders(folder) if (job / ".hydra" / "overrides.yaml").is_file()]
-    if len(jobs) < 2:
-        raise ValueError(
-            f"multirun: {folder}: expected a Hydra multirun folder with two or more job folders "
-            f"(each with .hydra/overrides.yaml), found {len(jobs)}"
-        )
-    runs = []
-    for job in jobs:
-        saved = job / ".hydra" / "overrides.yaml"
-        overrides = yaml.safe_load(saved.read_text()) or []
-        if not isinstance(overrides, list):
-            raise ValueError(f"{saved}: expected a list of overrides, got {type(overrides)}")
-        label = f"job {job.relative_to(folder)}"
-        runs.append(
-            Run(label, parse_overrides([str(o) for o in overrides]), _folder_reader(job), _at(job))
-        )
-    return runs
-
-
-def _folder_reader(root: Path) -> Callable[[str], bytes | None]:
-    def read(path: str) -> bytes | None:
-        file = root / path
-        return file.read_bytes() if file.is_file() else None
-
-    return read
-
-
-def _at(root: Path) -> Callable[[str], str]:
-    return lambda path: str(root / path)
-
-
-def experiment_runs(names: Sequence[str], repo: Path) -> list[Run]:
-    """DVC experiments (names) or git revisions of the DVC repository `repo`; parameters: the
-    params every stage of dvc.yaml declares, as `<file>:<key>` (dvc params show)."""
-    import dvc.api
-    from dvc.scm import SCM, RevError, resolve_rev
-
-    if len(names) < 2:
-        raise ValueError(f"experiments: expected two or more names or revisions, got {names}")
-    scm = SCM(str(repo))
-    runs = []
-    for name in names:
-        try:
-            rev = resolve_rev(scm, name)
-        except RevError as err:
-            raise ValueError(
-                f"experiments: {name!r} is neither a DVC experiment nor a git revision of "
-                f"{repo} ({err})"
-            ) from None
-        params = dvc.api.params_show(repo=str(repo), rev=rev)
-        runs.append(Run(name, _params_by_file(params), _rev_reader(repo, rev), _at_rev(name)))
-    return runs
-
-
-def _params_by_file(params: Mapping[str, Any]) -> dict[str, Any]:
-    """dvc.api.params_show's answer ({file: params} for several files, the params themselves
-    for a single params.yaml), flat."""
-    by_file = all(isinstance(k, str) and k.endswith((".yaml", ".yml")) for k in params)
-    if not by_file:
-        return flatten(params)
-    return {f"{file}:{key}": v for file, p in params.items() for key, v in flatten(p).items()}
-
-
-def _rev_reader(repo: Path, rev: str) -> Callable[[str], bytes | None]:
-    from dvc.api import DVCFileSystem
-
-    fs = DVCFileSystem(str(repo), rev=rev)
-
-    def read(path: str) -> bytes | None:
-        return fs.read_bytes(path) if fs.isfile(path) else None
-
-    return read
-
-
-def _at_rev(name: str) -> Callable[[str], str]:
-    return lambda path: f"{path} (experiment {name})"
-
-
-# ---------------------------------------------------------------- artifacts of a run
-
-
-def read_json_at(run: Run, path: str) -> Any:
-    """A JSON file of the run, or None where it has none; malformed → error naming it."""
-    data = run.read(path)
-    if data is None:
-        return None
-    try:
-        return json.loads(data)
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{run.where(path)}: not valid JSON ({err})") from None
-
-
-def headline(run: Run) -> tuple[dict[str, Any], str | None]:
-    """The run's headline metrics and where they came from: reports/summary.json, else (a run
-    of the train stage only, e.g. a training sweep) Table 1's val_mae per row from
-    reports/metrics/train_<row>.json; ({}, None) when it has neither."""
-    summary = read_json_at(run, SUMMARY_JSON)
-    if summary is not None:
-        if not isinstance(summary, Mapping):
-            raise ValueError(f"{run.where(SUMMARY_JSON)}: expected a JSON object of metrics")
-        return dict(summary), SUMMARY_JSON
-    table1 = {}
-    for row in TABLE1_ROWS:
-        path = f"reports/metrics/train_{row}.json"
-        metrics = read_json_at(run, path)
-        if metrics is not None:
-            if not isinstance(metrics, Mapping) or "val_mae" not in metrics:
-                raise ValueError(f"{run.where(path)}: expected a JSON object with 'val_mae'")
-            table1[f"t1_{row}"] = metrics["val_mae"]
-    return (table1, "reports/metrics/train_<row>.json") if table1 else ({}, None)
-
-
-def history(run: Run, row: str) -> pd.DataFrame | None:
-    """models/<row>/history.csv of the run (None if absent), checked for the curve columns."""
-    path = f"models/{row}/history.csv"
-    data = run.read(path)
-    if data is None:
-        return None
-    table = pd.read_csv(io.BytesIO(data))
-    missing = [c for c in HISTORY_COLUMNS if c not in table.columns]
-    if missing:
-        raise ValueError(f"{run.where(path)}: missing column(s) {missing}")
-    return table
-
-
-def drive_errors(
-    run: Run, trajectory: str, localizers: Iterable[str]
-) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str | None]:
-    """Per localizer of `trajectory` the run estimated: (time [s], position error [m]) per
-    step, or ({}, why) when the run has no true trajectory."""
-    truth_path = f"data/trajectories/{trajectory}/truth.npy"
-    data = run.read(truth_path)
-    if data is None:
-        return {}, f"no {truth_path}"
-    truth = np.load(io.BytesIO(data))
-    if truth.ndim != 2 or truth.shape[1] != 3:
-        raise ValueError(
-            f"{run.where(truth_path)}: expected poses of shape (T, 3), got {truth.shape}"
-        )
-    out = {}
-    for name in localizers:
-        path = f"reports/localize/{trajectory}/{name}.csv"
-        table_bytes = run.read(path)
-        if table_bytes is None:
-            continue
-        table = pd.read_csv(io.BytesIO(table_bytes))
-        check_table(table, run.where(path), len(truth))
-        pos, _ = figures.step_errors(truth, table)
-        t = table["t"].to_numpy(dtype=np.float64) if "t" in table else np.arange(len(table))
-        out[name] = (t, pos)
-    return out, None
-
-
-# ---------------------------------------------------------------- sections
 
 
 def direction(key: str) -> int:
@@ -271,7 +80,7 @@ def _cell(value: Any) -> str:
     return json.dumps(value) if isinstance(value, (list, dict)) else str(value)
 
 
-def params_section(runs: Sequence[Run]) -> Section:
+def params_section(runs: Sequence[ComparedRun]) -> Section:
     keys = list(dict.fromkeys(k for run in runs for k in run.params))
     differ = [k for k in keys if len({_cell(run.params.get(k)) for run in runs}) > 1]
     section = Section("params", "Parameter differences")
@@ -286,7 +95,7 @@ def params_section(runs: Sequence[Run]) -> Section:
     return section
 
 
-def metrics_section(runs: Sequence[Run]) -> Section:
+def metrics_section(runs: Sequence[ComparedRun]) -> Section:
     section = Section("metrics", "Headline metrics")
     loaded = [headline(run) for run in runs]
     keys = list(dict.fromkeys(k for metrics, _ in loaded for k in metrics))
@@ -309,9 +118,9 @@ def metrics_section(runs: Sequence[Run]) -> Section:
     return section
 
 
-def curves_section(b: Builder, runs: Sequence[Run]) -> Section:
+def curves_section(b: Builder, runs: Sequence[ComparedRun]) -> Section:
     section = Section("curves", "Learning curves (paper Fig. 7)")
-    for row in TABLE1_ROWS:
+    for row in ROWS:
         histories = {run.label: h for run in runs if (h := history(run, row)) is not None}
         if not histories:
             section.blocks.append(Para(f"{row}: no run has models/{row}/history.csv."))
@@ -354,7 +163,7 @@ def plot_position_errors(
 
 
 def errors_section(
-    b: Builder, runs: Sequence[Run], trajectory: str, localizers: Sequence[str]
+    b: Builder, runs: Sequence[ComparedRun], trajectory: str, localizers: Sequence[str]
 ) -> Section:
     section = Section("errors", f"Position error over time ({trajectory})")
     errors, notes = {}, []
@@ -388,7 +197,7 @@ def errors_section(
 
 
 def write_compare(
-    runs: Sequence[Run],
+    runs: Sequence[ComparedRun],
     out_dir: Path,
     source: str,
     trajectory: str = PAPER_DRIVE,

@@ -24,13 +24,15 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from scanloc.report.claims import VERDICT_LEGEND, Claim
+from scanloc.report.claims import Verdict
+from scanloc.report.paper import PAPER_DRIVE, PAPER_KIDNAP, ROWS
+from scanloc.report.verdicts import VERDICTS
 
-TABLE1_ROWS = ("mlp", "cnn1d_20k", "cnn1d_200k", "cnn2d")
+# The localizers of specific headline metrics (not "all of a group": those come from the
+# localizer catalog, report/localizers.py).
 HEADLINE_LOCALIZERS = ("amcl", "cnn_ensemble", "scanlocnet", "hybrid")
 CONVERGING = ("amcl_global", "hybrid")
 RECOVERING = ("amcl_recovery", "hybrid")
-PAPER_DRIVE, PAPER_KIDNAP = "sparse_obstacles_drive", "sparse_obstacles_kidnap"
 
 
 def _round(value: Any) -> float | None:
@@ -44,7 +46,7 @@ def headline_metrics(
     table1: Mapping[str, float],
     localization: Mapping[str, Mapping[str, Mapping[str, Any]]],
     maps: Iterable[str],
-    claims: list[Claim],
+    claims: list[Verdict],
     wall_s: float,
     real_logs: Iterable[str] = (),
 ) -> dict[str, float | int | None]:
@@ -52,7 +54,7 @@ def headline_metrics(
     localization metrics {trajectory: {localizer: {metric: value}}}, the map names, the claims
     and the total stage time."""
     out: dict[str, float | int | None] = {}
-    for row in TABLE1_ROWS:
+    for row in ROWS:
         out[f"t1_{row}"] = _round(table1.get(row))
     drive = localization.get(PAPER_DRIVE, {})
     kidnap = localization.get(PAPER_KIDNAP, {})
@@ -70,7 +72,7 @@ def headline_metrics(
         real = localization.get(f"{name}_real", {})
         out[f"real_rmse_{name}"] = _round(real.get("amcl", {}).get("pos_err_rmse_m"))
         out[f"real_top5_{name}"] = _round(real.get("scanlocnet", {}).get("top5_recall"))
-    for verdict in VERDICT_LEGEND:
+    for verdict in VERDICTS:
         key = "claims_" + verdict.replace(" ", "_")
         out[key] = sum(1 for claim in claims if claim.verdict == verdict)
     out["wall_s"] = _round(wall_s)

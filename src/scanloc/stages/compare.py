@@ -9,12 +9,13 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from scanloc.report.compare import Run, experiment_runs, multirun_runs, write_compare
-from scanloc.report.document import Table
+from scanloc.report.compare import write_compare
+from scanloc.report.compare_runs import ComparedRun, experiment_runs, multirun_runs
+from scanloc.report.render.document import Table
 from scanloc.stages._app import stage_main
 
 
-def load_runs(cfg: DictConfig) -> tuple[list[Run], str]:
+def load_runs(cfg: DictConfig) -> tuple[list[ComparedRun], str]:
     """The runs the config names (exactly one of `experiments` and `multirun`) and a phrase
     saying where they come from."""
     experiments = [str(name) for name in cfg.experiments or []]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import subprocess
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -14,21 +15,22 @@ from scanloc.report.build import build_report
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 
 
-def git_commit() -> str | None:
-    """The checked-out commit (with '+dirty' for local edits), or None outside a git checkout."""
+def _git(repo: Path, *args: str) -> str:
+    return subprocess.run(
+        ["git", *args], cwd=repo, capture_output=True, text=True, check=True
+    ).stdout.strip()
+
+
+def git_commit(repo: Path, source_paths: Sequence[str]) -> str | None:
+    """The checked-out commit, with '+dirty' when a tracked file under `source_paths` differs
+    from HEAD (the pipeline's code and config: dvc.lock and DVC outputs, which `dvc repro`
+    rewrites while this stage runs, do not count); None outside a git checkout."""
     try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
+        commit = _git(repo, "rev-parse", "HEAD")
+        changed = _git(repo, "status", "--porcelain", "--untracked-files=no", "--", *source_paths)
     except (OSError, subprocess.CalledProcessError):
         return None
-    return commit + ("+dirty" if dirty else "")
+    return commit + ("+dirty" if changed else "")
 
 
 def profile_params(profile: str) -> dict[str, Any]:
@@ -47,11 +49,11 @@ def main(cfg: DictConfig) -> None:
         context = {
             "profile": profile,
             "params": params,
-            "git_commit": git_commit(),
+            "git_commit": git_commit(Path("."), [str(p) for p in cfg.source_paths]),
             "maps": list(params["params.yaml"].get("maps") or {}),
             "real_logs": list(params["params.yaml"].get("real_logs") or {}),
         }
-        headline = build_report(Path("."), Path(cfg.out_dir), context, to_dict(cfg.claims))
+        headline = build_report(Path("."), Path(cfg.out_dir), context, to_dict(cfg))
         write_json(Path(cfg.summary_path), headline)
 
 

@@ -30,6 +30,7 @@ border:1px solid #eee}figcaption{font-size:.9em;color:#555}
 pre{background:#f6f6f6;padding:.6em;overflow-x:auto;font-size:.82em}
 .v-reproduced td{background:#d4edc9}.v-direction td{background:#fbefc4}
 .v-not td{background:#f5d0d0}.v-untestable td{background:#e6e6e6}
+.v-inconclusive td{background:#dbe6f4}
 """
 CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
 

@@ -1,6 +1,6 @@
-"""The report's "Real data" section: every localizer on a real laser log and on its simulated
-twin (the same poses and odometry, scans simulated in the map built from the log), side by
-side, so that the sim-to-real gap is one subtraction (stages/real.py makes both runs)."""
+"""Section "Real data": every localizer of the localize stage on a real laser log and on its
+simulated twin (the same poses and odometry, scans simulated in the map built from the log),
+side by side, so that the sim-to-real gap is one subtraction (stages/real.py makes both runs)."""
 
 from __future__ import annotations
 
@@ -8,21 +8,14 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-from scanloc.report import figures
-from scanloc.report.beyond import converge_text, estimate_tables, fmt_value
-from scanloc.report.build import SECTIONS, TRAJECTORIES
-from scanloc.report.document import Builder, Para, Section, Table
+from scanloc.report.artifacts import TRAJECTORIES, estimate_tables, map_yaml
+from scanloc.report.context import ReportContext, SectionSpec
+from scanloc.report.render import localization_figures as figures
+from scanloc.report.render.document import Para, Section, Table
+from scanloc.report.render.tables import converge_text, fixed
 from scanloc.trajectory.format import load_trajectory
 from scanloc.world.map_server import load_map
 
-REAL_METHODS = (
-    "amcl",
-    "amcl_global",
-    "amcl_recovery",
-    "scanlocnet",
-    "scanlocnet_track",
-    "hybrid",
-)
 # (metric, column title, digits or "%"), shown for the simulated and the real run
 COMPARED = (
     ("pos_err_mean_m", "pos. mean [m]", 3),
@@ -30,14 +23,15 @@ COMPARED = (
     ("heading_err_mean_deg", "heading mean [°]", 2),
     ("frac_gross_over_1m", "lost > 1 m", "%"),
 )
+REAL_STAGE = "localize"  # the stage that runs on every real log's runs
 
 
 def _cell(metrics: Mapping[str, Any] | None, key: str, digits: int | str) -> str:
     if not metrics:
         return "–"
     if digits == "%":
-        return fmt_value(metrics.get(key), percent=True)
-    return fmt_value(metrics.get(key), int(digits))
+        return fixed(metrics.get(key), percent=True)
+    return fixed(metrics.get(key), int(digits))
 
 
 def _gap_sentence(log: str, sim: Mapping[str, Any], real: Mapping[str, Any]) -> str:
@@ -56,16 +50,41 @@ def _gap_sentence(log: str, sim: Mapping[str, Any], real: Mapping[str, Any]) -> 
             f"best hypotheses on {100 * learned_real['top5_recall']:.1f} % of the real scans "
             f"against {100 * learned_sim['top5_recall']:.1f} % of the simulated ones, and its "
             f"best hypothesis is more than 1 m off on "
-            f"{fmt_value(learned_real.get('frac_gross_over_1m'), percent=True)} (real) against "
-            f"{fmt_value(learned_sim.get('frac_gross_over_1m'), percent=True)} (simulated)"
+            f"{fixed(learned_real.get('frac_gross_over_1m'), percent=True)} (real) against "
+            f"{fixed(learned_sim.get('frac_gross_over_1m'), percent=True)} (simulated)"
         )
     if not parts:
         return f"{log}: no metrics to compare."
     return f"{log}: " + "; ".join(parts) + "."
 
 
-def real_data_section(b: Builder, logs: list[str], all_metrics: Mapping[str, Any]) -> Section:
-    section = Section(*SECTIONS[8])
+def _table(methods: list[str], sim: Mapping[str, Any], real: Mapping[str, Any]) -> Table:
+    header = ["localizer"]
+    for _, title, _ in COMPARED:
+        header += [f"{title} sim", f"{title} real"]
+    header += ["steps to converge sim", "steps to converge real", "top-5 recall sim / real"]
+    rows = []
+    for method in methods:
+        s, r = sim.get(method), real.get(method)
+        if s is None and r is None:
+            continue
+        row = [method]
+        for key, _, digits in COMPARED:
+            row += [_cell(s, key, digits), _cell(r, key, digits)]
+        row += [converge_text(s or {}), converge_text(r or {})]
+        recall = (s or {}).get("top5_recall"), (r or {}).get("top5_recall")
+        row.append(
+            "–"
+            if None in recall
+            else f"{fixed(recall[0], percent=True)} / {fixed(recall[1], percent=True)}"
+        )
+        rows.append(row)
+    return Table(header, rows)
+
+
+def build(ctx: ReportContext, spec: SectionSpec) -> list[Section]:
+    b = ctx.builder
+    section = spec.section()
     section.blocks.append(
         Para(
             "Beyond the paper: real laser logs with corrected poses (CARMEN format, "
@@ -80,18 +99,19 @@ def real_data_section(b: Builder, logs: list[str], all_metrics: Mapping[str, Any
             "the sim-to-real gap."
         )
     )
-    if not logs:
+    if not ctx.real_logs:
         section.blocks.append(Para("No real logs in params.yaml `real_logs`."))
-        return section
-    for log in logs:
-        sim = all_metrics.get(f"{log}_sim") or {}
-        real = all_metrics.get(f"{log}_real") or {}
+        return [section]
+    methods = ctx.localizers.of_stage(REAL_STAGE)
+    for log in ctx.real_logs:
+        sim = ctx.artifacts.localization.get(f"{log}_sim") or {}
+        real = ctx.artifacts.localization.get(f"{log}_real") or {}
         real_dir = b.root / TRAJECTORIES / f"{log}_real"
-        map_yaml = b.root / "data" / "maps" / log / "map.yaml"
-        if not real or not (real_dir / "truth.npy").is_file() or not map_yaml.is_file():
+        grid_yaml = map_yaml(b.root, log)
+        if not real or not (real_dir / "truth.npy").is_file() or not grid_yaml.is_file():
             section.blocks.append(Para(f"{log}: not evaluated (no real run or metrics)."))
             continue
-        grid = load_map(map_yaml)
+        grid = load_map(grid_yaml)
         traj, _ = load_trajectory(real_dir)
         meta = json.loads((real_dir / "meta.json").read_text())
         width, height = grid.size_m
@@ -104,7 +124,7 @@ def real_data_section(b: Builder, logs: list[str], all_metrics: Mapping[str, Any
                 f"{width:.1f} × {height:.1f} m at {grid.resolution:g} m."
             )
         )
-        tables = estimate_tables(b.root, f"{log}_real", ("amcl", "scanlocnet", "hybrid"))
+        tables = estimate_tables(b.root, f"{log}_real", ctx.figure_localizers)
         if tables:
             section.blocks.append(
                 b.figure(
@@ -116,26 +136,9 @@ def real_data_section(b: Builder, logs: list[str], all_metrics: Mapping[str, Any
                     ),
                 )
             )
-        header = ["localizer"]
-        for _, title, _ in COMPARED:
-            header += [f"{title} sim", f"{title} real"]
-        header += ["steps to converge sim", "steps to converge real", "top-5 recall sim / real"]
-        rows = []
-        for method in REAL_METHODS:
-            s, r = sim.get(method), real.get(method)
-            if s is None and r is None:
-                continue
-            row = [method]
-            for key, _, digits in COMPARED:
-                row += [_cell(s, key, digits), _cell(r, key, digits)]
-            row += [converge_text(s or {}), converge_text(r or {})]
-            recall = (s or {}).get("top5_recall"), (r or {}).get("top5_recall")
-            row.append(
-                "–"
-                if None in recall
-                else f"{fmt_value(recall[0], percent=True)} / {fmt_value(recall[1], percent=True)}"
-            )
-            rows.append(row)
-        section.blocks.append(Table(header, rows))
+        section.blocks.append(_table(methods, sim, real))
         section.blocks.append(Para(_gap_sentence(log, sim, real)))
-    return section
+    return [section]
+
+
+SECTION = SectionSpec("real-data", "Real data", build)

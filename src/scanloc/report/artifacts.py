@@ -1,0 +1,250 @@
+"""Where the pipeline's stages leave what the report shows, and how it is read.
+
+Everything the report says is read from the artifact tree under a root (the repository when the
+`report` stage runs). Required inputs that are missing raise an error naming the file; the
+loaders of optional ones return None (or nothing) and the sections say what is missing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from scanloc.evaluate.metrics import check_table
+from scanloc.evaluate.table2 import ordered_methods
+from scanloc.hardware import device_sentence
+from scanloc.io import read_json
+from scanloc.report.paper import PAPER_DRIVE, ROWS, TRANSFER
+from scanloc.sensor.laser import LaserSpec
+from scanloc.sensor.simulate import laser_spec_from_config
+from scanloc.world.map_server import load_map
+from scanloc.world.occupancy_grid import OccupancyGrid
+
+TRAJECTORIES = Path("data/trajectories")
+MAPS_DIR = Path("data/maps")
+SCANS_DIR = Path("data/scans")
+METRICS_DIR = Path("reports/metrics")
+METRICS_JSON = METRICS_DIR / "localization.json"
+LOCALIZE_DIRS = (Path("reports/localize"), Path("reports/localize_cnn"))
+TIMING_DIR = Path("reports/timing")
+REPORT_TIMING = "report"  # this stage's own timing file, from its previous run: not counted
+
+
+def required(path: Path, what: str) -> Path:
+    """`path`, or an error naming it and what the report needs it for."""
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: missing, required by the report ({what})")
+    return path
+
+
+def as_float(value: Any) -> float:
+    """A metric as a float; NaN for a missing, non-numeric or boolean one."""
+    if value is None or isinstance(value, bool) or not isinstance(value, (int, float)):
+        return math.nan
+    return float(value)
+
+
+@dataclass(frozen=True)
+class TrainingRun:
+    """One training run's artifacts: per-epoch history, final metrics and the config as run."""
+
+    history: pd.DataFrame
+    metrics: Mapping[str, Any]
+    config: Mapping[str, Any]
+
+    @property
+    def val_mae(self) -> float:
+        return as_float(self.metrics.get("val_mae"))
+
+    @property
+    def train_mae(self) -> float:
+        """Final epoch's training MAE."""
+        return float(self.history["train_mae"].iloc[-1]) if len(self.history) else math.nan
+
+    @property
+    def epoch_s(self) -> float:
+        return as_float(self.metrics.get("epoch_s"))
+
+    @property
+    def samples(self) -> int:
+        return int(self.config.get("samples", self.metrics.get("samples", 0)) or 0)
+
+    @property
+    def epochs(self) -> int:
+        return len(self.history)
+
+    def val_mae_at(self, epoch: int) -> float:
+        """Validation MAE after `epoch` epochs (NaN if the run is shorter)."""
+        rows = self.history[self.history["epoch"] == epoch]
+        return float(rows["val_mae"].iloc[0]) if len(rows) else math.nan
+
+    @property
+    def device(self) -> str:
+        return device_sentence(self.metrics.get("device"))
+
+
+def metrics_path(name: str) -> Path:
+    """Where the train / transfer stage writes a run's final metrics (a DVC metrics file)."""
+    if name.startswith("transfer/"):
+        return METRICS_DIR / f"transfer_{name.removeprefix('transfer/')}.json"
+    return METRICS_DIR / f"train_{name}.json"
+
+
+def load_run(root: Path, name: str) -> TrainingRun | None:
+    """A run's history and config (models/<name>/) and final metrics (`metrics_path`), or None
+    if its model folder does not exist."""
+    folder = root / "models" / name
+    if not folder.is_dir():
+        return None
+    history_path = required(folder / "history.csv", "per-epoch training history")
+    history = pd.read_csv(history_path)
+    missing = [c for c in ("epoch", "train_mae", "val_mae") if c not in history.columns]
+    if missing:
+        raise ValueError(f"{history_path}: missing column(s) {missing}")
+    metrics = read_json(required(root / metrics_path(name), "final training metrics"))
+    config = read_json(required(folder / "config.json", "training parameters as run"))
+    return TrainingRun(history, metrics, config)
+
+
+def load_runs(root: Path) -> dict[str, TrainingRun]:
+    """The Table 1 rows and the two transfer runs whose model folder exists."""
+    runs = {name: load_run(root, name) for name in (*ROWS, *TRANSFER)}
+    return {name: run for name, run in runs.items() if run is not None}
+
+
+def load_tables(root: Path, run: str, steps: int) -> dict[str, pd.DataFrame]:
+    """Every <method>.csv of trajectory `run` (reports/localize/<run>/ and
+    reports/localize_cnn/<run>/), in report order, checked against the truth length."""
+    paths = {
+        p.stem: p for folder in LOCALIZE_DIRS for p in sorted((root / folder / run).glob("*.csv"))
+    }
+    tables = {}
+    for name in ordered_methods(paths):
+        table = pd.read_csv(paths[name])
+        check_table(table, str(paths[name]), steps)
+        tables[name] = table
+    return tables
+
+
+def estimate_tables(root: Path, run: str, methods: list[str]) -> dict[str, pd.DataFrame]:
+    """The estimate tables of `methods` that trajectory `run` has, in the order given."""
+    found = {}
+    for method in methods:
+        for folder in LOCALIZE_DIRS:
+            path = root / folder / run / f"{method}.csv"
+            if path.is_file():
+                found[method] = pd.read_csv(path)
+    return found
+
+
+def load_truth(root: Path, run: str) -> np.ndarray:
+    """True poses (T, 3) of trajectory `run`."""
+    truth_path = required(root / TRAJECTORIES / run / "truth.npy", "true trajectory")
+    truth = np.load(truth_path)
+    if truth.ndim != 2 or truth.shape[1] != 3:
+        raise ValueError(f"{truth_path}: expected true poses of shape (T, 3), got {truth.shape}")
+    return truth
+
+
+def map_yaml(root: Path, name: str) -> Path:
+    return root / MAPS_DIR / name / "map.yaml"
+
+
+def dataset_map_name(meta: Mapping[str, Any]) -> str:
+    """The map a dataset was taken on: meta.json's `map` is {"name": ..., ...} (or a bare name)."""
+    entry = meta.get("map", "?")
+    return str(entry.get("name", "?")) if isinstance(entry, Mapping) else str(entry)
+
+
+def find_dataset(root: Path, map_name: str) -> Path | None:
+    """The smallest dataset (then first by name) whose meta.json says it was taken on `map_name`."""
+    found = []
+    for meta_path in sorted((root / SCANS_DIR).glob("*/meta.json")):
+        meta = read_json(meta_path)
+        if dataset_map_name(meta) == map_name:
+            found.append((int(meta.get("count", 0)), meta_path.parent.name, meta_path.parent))
+    return min(found)[2] if found else None
+
+
+def laser_from_meta(meta: Mapping[str, Any], meta_path: Path) -> LaserSpec:
+    try:
+        return laser_spec_from_config(meta.get("sensor"))
+    except ValueError as err:
+        raise ValueError(f"{meta_path}: field 'sensor': {err}") from None
+
+
+def example_scan(dataset: Path) -> tuple[np.ndarray, np.ndarray, int]:
+    """(pose, ranges, index) of the first validation scan (memory-mapped: datasets can be big)."""
+    is_val = np.load(required(dataset / "is_val.npy", "train/validation split"), mmap_mode="r")
+    index = int(np.argmax(is_val)) if np.any(is_val) else 0
+    poses = np.load(required(dataset / "poses.npy", "scan poses"), mmap_mode="r")
+    ranges = np.load(required(dataset / "ranges.npy", "scan ranges"), mmap_mode="r")
+    return np.array(poses[index], dtype=np.float64), np.array(ranges[index], np.float64), index
+
+
+def scanlocnet_run(root: Path, map_name: str) -> tuple[dict | None, pd.DataFrame | None]:
+    """The learned localizer's final metrics and training history on a map (None if absent)."""
+    metrics_file = root / METRICS_DIR / f"scanlocnet_{map_name}.json"
+    history_path = root / "models" / "scanlocnet" / map_name / "history.csv"
+    metrics = read_json(metrics_file) if metrics_file.is_file() else None
+    history = pd.read_csv(history_path) if history_path.is_file() else None
+    return metrics, history
+
+
+def stage_timings(root: Path) -> list[tuple[str, Any]]:
+    """(stage, wall time [s] as recorded) of every stage's timing file but the report's own."""
+    timings = []
+    for path in sorted((root / TIMING_DIR).glob("*.json")):
+        if path.stem == REPORT_TIMING:
+            continue
+        doc = read_json(path)
+        timings.append((str(doc.get("stage", path.stem)), doc.get("wall_s")))
+    return timings
+
+
+def total_stage_seconds(root: Path) -> float:
+    """The sum of the stages' wall times in reports/timing/ (the report's own excluded)."""
+    return sum(float(wall_s or 0.0) for _, wall_s in stage_timings(root))
+
+
+@dataclass
+class Artifacts:
+    """What several sections and the claims read, loaded once: the paper drive's truth and
+    estimate tables, the localization metrics of every trajectory, the training runs."""
+
+    root: Path
+    truth: np.ndarray
+    localization: Mapping[str, Mapping[str, Mapping[str, Any]]]
+    runs: Mapping[str, TrainingRun]
+    tables: Mapping[str, pd.DataFrame]
+    _grids: dict[str, OccupancyGrid] = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def load(cls, root: Path) -> Artifacts:
+        truth = load_truth(root, PAPER_DRIVE)
+        path = root / METRICS_JSON
+        localization = read_json(required(path, "localization metrics from evaluate"))
+        if PAPER_DRIVE not in localization:
+            raise ValueError(f"{path}: field '{PAPER_DRIVE}': missing (paper Table 2)")
+        runs = load_runs(root)
+        return cls(root, truth, localization, runs, load_tables(root, PAPER_DRIVE, len(truth)))
+
+    @property
+    def paper_metrics(self) -> Mapping[str, Mapping[str, Any]]:
+        """The localization metrics of the paper's drive, per localizer (Table 2)."""
+        return self.localization[PAPER_DRIVE]
+
+    def grid(self, name: str) -> OccupancyGrid | None:
+        """data/maps/<name>/map.yaml, read once; None if the map is absent."""
+        if name not in self._grids:
+            path = map_yaml(self.root, name)
+            if not path.is_file():
+                return None
+            self._grids[name] = load_map(path)
+        return self._grids[name]

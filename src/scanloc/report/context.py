@@ -1,0 +1,54 @@
+"""What every section of the report is built from, and what a section is to the registry."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from scanloc.report.artifacts import Artifacts
+from scanloc.report.claims import Verdict
+from scanloc.report.localizers import Localizers
+from scanloc.report.paper import MAP1
+from scanloc.report.render.document import Builder, Section
+
+
+@dataclass(frozen=True)
+class ReportContext:
+    """The figure writer, the loaded artifacts, the localizer catalog, the claims' verdicts
+    and their legend, and the run's context: {"profile", "params" (resolved config),
+    "git_commit", "maps" (params.yaml `maps`), "real_logs" (its `real_logs`)}."""
+
+    builder: Builder
+    artifacts: Artifacts
+    localizers: Localizers
+    verdicts: list[Verdict]
+    legend: Mapping[str, str]
+    run: Mapping[str, Any]
+    figure_localizers: list[str]  # the localizers drawn over a map (conf/report.yaml)
+
+    @property
+    def maps(self) -> list[str]:
+        return list(self.run.get("maps") or [MAP1])
+
+    @property
+    def real_logs(self) -> list[str]:
+        return list(self.run.get("real_logs") or [])
+
+    @property
+    def profile(self) -> str:
+        return str(self.run.get("profile", "?"))
+
+
+@dataclass(frozen=True)
+class SectionSpec:
+    """One entry of the report's registry: its id and title (a per-map section's with a
+    `{name}` placeholder) and what builds it (one section, or one per map)."""
+
+    id: str
+    title: str
+    build: Callable[[ReportContext, SectionSpec], list[Section]]
+
+    def section(self, **names: str) -> Section:
+        """An empty section with this entry's id and title (placeholders filled in)."""
+        return Section(self.id.format(**names), self.title.format(**names))
