@@ -3,6 +3,7 @@ before anything is written; the paper's and the generated maps pass every check.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -28,19 +29,26 @@ from scanloc.stages.budget import (
     estimate_memory,
     pipeline_sizes,
 )
-from scanloc.world.build import build_map
+from scanloc.world.build import build_map, pad_cells
 from scanloc.world.free_space import sample_free_poses
 from scanloc.world.map_checks import (
     MAX_OCCUPIED_SHARE,
     MapCheckError,
     MapWarning,
+    border_advice,
     cell_shares,
     check_map,
     free_component_sizes,
     map_label,
     planned_shape,
 )
-from scanloc.world.map_server import load_map, save_map
+from scanloc.world.map_server import (
+    classify_pixels,
+    load_map,
+    read_map_metadata,
+    save_map,
+    unknown_pixel_value,
+)
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -395,3 +403,65 @@ def test_maps_stage_writes_a_good_map_whole(tmp_path: Path) -> None:
         load_map(tmp_path / "maps" / "bad" / "map.yaml").cells, load_map(path).cells
     )
     assert "8 x 6 cells at 0.1 m, free 50.0%" in result.stderr
+
+
+def test_border_advice_follows_the_maps_own_thresholds(tmp_path: Path) -> None:
+    """Under free_thresh 0.3, map_saver's 205 reads as free: the advice names a value that
+    reads as unknown under the map's thresholds, and padding with it passes the check."""
+    rows = room(6, 4)
+    rows[2] = "." + rows[2][1:]
+    path = write_ros_map(tmp_path, *rows)
+    path.write_text(path.read_text().replace("free_thresh: 0.196", "free_thresh: 0.3"))
+    meta = read_map_metadata(path)
+    advice = border_advice(meta)
+    value = int(advice.split("pixels of value ")[1].split(",")[0])
+    assert value != 205
+    assert classify_pixels(np.array([[value]], np.uint8), 0.65, 0.3, False)[0, 0] == UNKNOWN
+    assert classify_pixels(np.array([[205]], np.uint8), 0.65, 0.3, False)[0, 0] == FREE
+    with pytest.raises(MapCheckError, match=f"pixels of value {value}, which read as unknown"):
+        check_map(load_map(path), "m", from_file=True, border_fix=advice)
+    # Following the advice by hand: the padded image passes.
+    pixels = np.pad(np.asarray(Image.open(tmp_path / "m.pgm")), 1, constant_values=value)
+    Image.fromarray(pixels).save(tmp_path / "m.pgm")
+    check_map(load_map(path), "m", from_file=True, border_fix=advice)
+
+
+def test_no_unknown_value_under_a_closed_band_says_so(tmp_path: Path) -> None:
+    path = write_ros_map(tmp_path, *room(3, 3))
+    # No k / 255 lies in [0.1961, 0.199]: 50 / 255 = 0.19608 reads free, 51 / 255 = 0.2 occupied.
+    text = path.read_text().replace("occupied_thresh: 0.65", "occupied_thresh: 0.199")
+    text = text.replace("free_thresh: 0.196", "free_thresh: 0.1961")
+    path.write_text(text)
+    meta = read_map_metadata(path)
+    assert unknown_pixel_value(meta) is None
+    assert "no 8-bit pixel value reads as unknown" in border_advice(meta)
+
+
+def test_pad_unknown_keeps_world_positions_and_is_recorded(tmp_path: Path) -> None:
+    source = tmp_path / "src"
+    source.mkdir()
+    rows = room(6, 4)
+    rows[2] = "." + rows[2][1:]
+    path = write_ros_map(source, *rows)
+    failed = run_maps_stage(tmp_path, "map=ros_file", f"map.path={path}", "map.name=bad")
+    assert "set map.pad_unknown: <cells>" in failed.stderr
+    result = run_maps_stage(
+        tmp_path, "map=ros_file", f"map.path={path}", "map.name=bad", "map.pad_unknown=3"
+    )
+    assert result.returncode == 0, result.stderr
+    out = tmp_path / "maps" / "bad"
+    padded, original = load_map(out / "map.yaml"), load_map(path)
+    assert padded.cells.shape == (original.height + 6, original.width + 6)
+    assert np.array_equal(padded.cells[3:-3, 3:-3], original.cells)
+    assert (padded.cells[:3] == UNKNOWN).all() and (padded.cells[:, -3:] == UNKNOWN).all()
+    x, y = original.cell_center(np.array([2]), np.array([1]))
+    col, row = padded.world_to_cell(x, y)
+    assert padded.cells[row[0], col[0]] == original.cells[1, 2]
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["pad_unknown"]["cells"] == 3
+    assert meta["pad_unknown"]["pixel_value"] == 205  # unknown under this map's 0.196 / 0.65
+
+
+def test_pad_unknown_must_be_a_cell_count() -> None:
+    with pytest.raises(ValueError, match="field 'pad_unknown': expected a number of cells >= 0"):
+        pad_cells({"name": "m", "source": "file", "pad_unknown": -1})

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from scanloc.io import atomic_dir
+from scanloc.io import atomic_dir, write_json
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.stages.budget import (
     check_memory,
@@ -24,9 +24,15 @@ from scanloc.stages.budget import (
     physical_memory,
     pipeline_sizes,
 )
-from scanloc.world.build import build_map, render_map_preview
-from scanloc.world.map_checks import cell_shares, check_map, map_label, planned_shape
-from scanloc.world.map_server import save_map
+from scanloc.world.build import build_map, map_provenance, render_map_preview
+from scanloc.world.map_checks import (
+    border_advice,
+    cell_shares,
+    check_map,
+    map_label,
+    planned_shape,
+)
+from scanloc.world.map_server import read_map_metadata, save_map
 
 
 @stage_main("maps")
@@ -43,12 +49,17 @@ def main(cfg: DictConfig) -> None:
             estimate = estimate_memory(*shape, sizes)
             check_memory(estimate, label, float(checks.memory_budget))
         grid = build_map(map_cfg)
+        from_file = map_cfg.get("source") == "file"
+        border_fix = border_advice(read_map_metadata(Path(map_cfg["path"]))) if from_file else None
         components = check_map(
-            grid, label, map_cfg.get("source") == "file", float(checks.max_occupied_share)
+            grid, label, from_file, float(checks.max_occupied_share), border_fix=border_fix
         )
+        provenance = map_provenance(map_cfg)
         with atomic_dir(out_dir) as tmp:
             save_map(grid, tmp / "map.yaml")
             render_map_preview(grid, tmp / "preview.png")
+            if provenance is not None:  # only maps the stage changed: the others keep their bytes
+                write_json(tmp / "meta.json", provenance)
     shares = cell_shares(grid)
     memory = (
         f"; estimated peak {format_bytes(estimate.need)} ({estimate.peak_stage}, profile "

@@ -34,7 +34,7 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
-from scanloc.world.map_server import read_map_metadata
+from scanloc.world.map_server import MapMetadata, read_map_metadata, unknown_pixel_value
 from scanloc.world.occupancy_grid import OccupancyGrid
 
 MAX_OCCUPIED_SHARE = 0.5  # occupied / (occupied + free); real maps 0.06-0.31, negated >= 0.69
@@ -76,7 +76,8 @@ def planned_shape(cfg: Mapping[str, Any]) -> tuple[int, int, float] | None:
             raise MapCheckError(
                 f"{cfg.get('path')}: field 'image': cannot read {meta.image}: {exc}"
             ) from exc
-        return rows, cols, meta.resolution
+        pad = 2 * int(cfg.get("pad_unknown", 0) or 0)  # build_map validates the value
+        return rows + pad, cols + pad, meta.resolution
     try:
         resolution = float(cfg["resolution"])
         rows = round(float(cfg["height"]) / resolution)
@@ -112,6 +113,26 @@ def border_free_cells(grid: OccupancyGrid) -> dict[str, int]:
     }
 
 
+def border_advice(meta: MapMetadata) -> str:
+    """How to bound a file map's free space at the image border, from the map's own
+    thresholds: the pixel value that reads as unknown under them, and the opt-in padding."""
+    value = unknown_pixel_value(meta)
+    thresholds = (
+        f"occupied_thresh {meta.occupied_thresh:g}, free_thresh {meta.free_thresh:g}, "
+        f"negate {int(meta.negate)}"
+    )
+    if value is None:
+        return (
+            f"no 8-bit pixel value reads as unknown under this map's thresholds ({thresholds}): "
+            "close the outer wall, or widen the band between free_thresh and occupied_thresh"
+        )
+    return (
+        f"set map.pad_unknown: <cells> to let the maps stage surround the map with unknown "
+        f"cells, or pad the image with pixels of value {value}, which read as unknown under "
+        f"this map's thresholds ({thresholds}), or close the outer wall"
+    )
+
+
 def free_component_sizes(grid: OccupancyGrid) -> np.ndarray:
     """Cell counts of the 4-connected free-space components, largest first (as the generator
     counts them: a robot cannot pass between two cells that only touch at a corner)."""
@@ -126,10 +147,12 @@ def check_map(
     label: str,
     from_file: bool,
     max_occupied_share: float = MAX_OCCUPIED_SHARE,
+    border_fix: str | None = None,
 ) -> np.ndarray:
     """Raise MapCheckError for a map the pipeline cannot use; warn (MapWarning) when its free
     space splits into several components. `label` names the map (see `map_label`);
-    `from_file`: a ROS map_server map, whose YAML's `negate` is the likely culprit.
+    `from_file`: a ROS map_server map, whose YAML's `negate` is the likely culprit;
+    `border_fix`: how to bound free space that reaches the image border (`border_advice`).
     Returns the free-space component sizes in cells, largest first."""
     counts = grid.counts()
     negate_hint = (
@@ -160,8 +183,8 @@ def check_map(
         raise MapCheckError(
             f"{label}: free space reaches the image border: {int((grid.free & border).sum())} "
             f"free border cells ({where}); expected free space enclosed by occupied cells or "
-            "bounded by unknown cells, so that rays and sampled poses stay on the map (pad the "
-            "image with unknown pixels, 205, or close the outer wall)"
+            "bounded by unknown cells, so that rays and sampled poses stay on the map "
+            f"({border_fix or 'close the outer wall'})"
         )
     sizes = free_component_sizes(grid)
     if len(sizes) > 1:

@@ -153,6 +153,32 @@ def classify_pixels(
     return cells
 
 
+def unknown_pixel_value(meta: MapMetadata) -> int | None:
+    """The 8-bit grey value that reads as unknown under this map's own thresholds (the one
+    nearest map_saver's 205), or None when no value does. map_saver's 205 itself reads as
+    free under a `free_thresh` above 0.196 (e.g. slam_toolbox's 0.25 or gmapping maps at 0.3),
+    so padding advice must come from the map's thresholds, not from the convention."""
+    values = np.arange(256, dtype=np.uint8)
+    cells = classify_pixels(values[None, :], meta.occupied_thresh, meta.free_thresh, meta.negate)
+    unknown = values[cells[0] == UNKNOWN].astype(np.int64)
+    if unknown.size == 0:
+        return None
+    return int(unknown[np.argmin(np.abs(unknown - PIXEL_UNKNOWN))])
+
+
+def pad_with_unknown(grid: OccupancyGrid, cells: int) -> OccupancyGrid:
+    """The grid with `cells` unknown cells added on every side, placed so that every original
+    cell keeps its world position (as padding the image with unknown pixels would)."""
+    if cells < 0:
+        raise ValueError(f"pad_unknown: expected a number of cells >= 0, got {cells}")
+    if cells == 0:
+        return grid
+    padded = np.pad(grid.cells, cells, constant_values=UNKNOWN)
+    x0, y0, yaw = grid.origin
+    origin = (x0 - cells * grid.resolution, y0 - cells * grid.resolution, yaw)
+    return OccupancyGrid(np.ascontiguousarray(padded), grid.resolution, origin)
+
+
 def load_map(yaml_path: str | os.PathLike[str]) -> OccupancyGrid:
     """Load a ROS map_server map (trinary mode) as an OccupancyGrid with row 0 at the bottom."""
     meta = read_map_metadata(yaml_path)
