@@ -3,9 +3,10 @@
 For each laser model (likelihood_field, likelihood_field_prob, beam): fixed particle counts (KLD
 off: min_particles = max_particles) of 1k, 5k and 10k, 60 beams asked for (each model's own
 beam rule picks 56-61 of 667), an update and a resampling on every scan. The compiled filter
-(`scanloc.localize.amcl.Amcl.update`) runs against a plain numpy version of the same math in the
-same process: the likelihood fields vectorised, the beam model with an exact ray cast per
-particle and beam (what amcl does, through scanloc's exact caster) instead of the range table.
+(`scanloc.localize.mcl.filter.ParticleFilter.update`) runs against a plain numpy version of the
+same math in the same process: the likelihood fields vectorised, the beam model with an exact
+ray cast per particle and beam (what amcl does, through scanloc's exact caster) instead of the
+range table.
 
 Threads: the compiled filter uses numba's threads (2 here); it is also timed on 1 thread. The
 numpy reference runs numpy's element-wise operations, which use one thread; its ray casts
@@ -22,18 +23,22 @@ import argparse
 import json
 import math
 import time
+from dataclasses import fields
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import numba
 import numpy as np
 from scipy import ndimage
 
-from scanloc.localize.amcl import Amcl, AmclParams
 from scanloc.localize.beam_model import exit_distance, select_beams_beam_model
 from scanloc.localize.clustering import BIN_THETA, BIN_XY
 from scanloc.localize.likelihood_field import distance_map, select_beams
 from scanloc.localize.likelihood_field_prob import select_beams_prob
-from scanloc.localize.motion_model import decompose, noise_sigmas
+from scanloc.localize.mcl.config import MclConfig, build_filter
+from scanloc.localize.mcl.motion import OdometryParams, decompose, noise_sigmas
+from scanloc.localize.mcl.sensor_models import BeamParams, LikelihoodFieldProbParams
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.raycast import CastMap, cast_exact
 from scanloc.trajectory.drive import drive_trajectory
@@ -60,16 +65,29 @@ def load_benchmark_map() -> tuple[OccupancyGrid, str]:
     return OccupancyGrid(cells, res), "synthetic room (0.02 m)"
 
 
-def params_for(model: str, n: int) -> AmclParams:
-    return AmclParams(
-        min_particles=n,
-        max_particles=n,
-        laser_model_type=model,
-        laser_max_beams=MAX_BEAMS,
-        resample_interval=1,
-        update_min_d=0.0,
-        update_min_a=0.0,
-    )
+# ROS 1's defaults of the laser and odometry keys the numpy reference reads
+REFERENCE_DEFAULTS = {
+    f.name: f.default
+    for part in (OdometryParams, LikelihoodFieldProbParams, BeamParams)
+    for f in fields(part)
+}
+
+
+def params_for(model: str, n: int) -> dict[str, Any]:
+    """ROS-named parameters: `n` particles (KLD off), an update and a resampling per scan."""
+    return {
+        "min_particles": n,
+        "max_particles": n,
+        "laser_model_type": model,
+        "laser_max_beams": MAX_BEAMS,
+        "resample_interval": 1,
+        "update_min_d": 0.0,
+        "update_min_a": 0.0,
+    }
+
+
+def compiled_filter(grid: OccupancyGrid, spec: LaserSpec, params: dict[str, Any]):
+    return build_filter(grid, spec, MclConfig.from_ros(params, source="benchmark"), seed=0)
 
 
 def median_update_s(
@@ -94,7 +112,7 @@ def median_update_s(
 
 def time_filter(grid, spec, odom, ranges, model: str, n: int, repeats: int, per_repeat: int):
     """Median seconds per update of the compiled filter with `n` particles (KLD off)."""
-    amcl = Amcl(grid, spec, params_for(model, n), seed=0)
+    amcl = compiled_filter(grid, spec, params_for(model, n))
     amcl.initialize_pose(odom[0])
     return median_update_s(amcl, odom, ranges, repeats, per_repeat, n_particles=n)
 
@@ -102,9 +120,10 @@ def time_filter(grid, spec, odom, ranges, model: str, n: int, repeats: int, per_
 class Reference:
     """The same filter update in plain numpy (and scipy's labelling for the clusters)."""
 
-    def __init__(self, grid: OccupancyGrid, spec: LaserSpec, params: AmclParams) -> None:
-        self.grid, self.spec, self.p = grid, spec, params
-        self.dist = distance_map(grid, params.laser_likelihood_max_dist)
+    def __init__(self, grid: OccupancyGrid, spec: LaserSpec, params: dict[str, Any]) -> None:
+        self.grid, self.spec = grid, spec
+        self.p = p = SimpleNamespace(**(REFERENCE_DEFAULTS | params))
+        self.dist = distance_map(grid, p.laser_likelihood_max_dist)
         self.angles = spec.beam_angles()
         self.rng = np.random.default_rng(0)
         self.cast_map = CastMap.from_grid(grid, unknown_blocks=True)
@@ -249,7 +268,7 @@ def time_reference(grid, spec, odom, ranges, model, n: int, repeats: int, per_re
 def agreement(grid, spec, odom, ranges, model: str) -> tuple[float, float]:
     """Max and median relative difference of the compiled and the numpy model's weights at 2000
     particles around the start (the beam model's range table quantises; the others are exact)."""
-    amcl = Amcl(grid, spec, params_for(model, 2000), seed=0)
+    amcl = compiled_filter(grid, spec, params_for(model, 2000))
     amcl.initialize_pose(odom[0])
     fast = amcl.sensor_model(amcl.poses, ranges[0], False)
     slow = Reference(grid, spec, params_for(model, 2000)).weights(amcl.poses, ranges[0])

@@ -27,7 +27,7 @@ import numpy as np
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from scanloc.localize.amcl import Amcl, AmclParams
+from scanloc.localize.mcl.config import MclConfig, build_filter
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
 from scanloc.trajectory.drive import drive_trajectory
@@ -86,10 +86,9 @@ def pipeline_run(profile: str, map_name: str = "sparse_obstacles"):
 
 def study(grid, spec, traj, ranges, overrides: dict, seed: int) -> dict[str, float]:
     """Run tracking amcl (conf/localizer/amcl.yaml's start) and collect the diagnostics."""
-    params = AmclParams(
-        initial_cov_xx=0.01, initial_cov_yy=0.01, initial_cov_aa=0.0076, **overrides
-    )
-    amcl = Amcl(grid, spec, params, seed=seed)
+    start = {"initial_cov_xx": 0.01, "initial_cov_yy": 0.01, "initial_cov_aa": 0.0076}
+    params = MclConfig.from_ros(start | overrides, source="benchmark")
+    amcl = build_filter(grid, spec, params, seed=seed)
     amcl.initialize_pose(traj.truth[0])
     n_eff, distinct, peak_to_median = [], [], []
     resample, sensor_update = amcl.resample, amcl.sensor_update
@@ -137,7 +136,7 @@ def study(grid, spec, traj, ranges, overrides: dict, seed: int) -> dict[str, flo
 def motion_spread(traj, model: str, update_every: int) -> float:
     """Std (m) the motion model adds along 1 m of the trajectory when it is applied every
     `update_every` scans (amcl's alphas 0.2), estimated from 2000 particles."""
-    from scanloc.localize.motion_model import sample_motion
+    from scanloc.localize.mcl.motion import sample_motion
 
     rng = np.random.default_rng(0)
     poses = np.repeat(traj.truth[:1], 2000, axis=0)

@@ -31,13 +31,15 @@ import yaml
 
 from amcl import (  # benchmarks/amcl.py, beside this script
     benchmark_drive,
+    compiled_filter,
     median_update_s,
     params_for,
 )
-from scanloc.localize.amcl import Amcl
-from scanloc.localize.hybrid import HybridAmcl, HybridParams, LearnedProposal
+from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal
 from scanloc.localize.learned_localizer import scan_hypotheses
-from scanloc.localize.proposals import UniformProposal
+from scanloc.localize.mcl.config import MclConfig, build_filter
+from scanloc.localize.mcl.estimator import map_bins
+from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.models.pose_grid import PoseGrid
 from scanloc.models.training import build_model
 from scanloc.sensor.laser import LaserSpec
@@ -96,12 +98,14 @@ def main() -> None:
     print(f"map: {map_name}; model: {figures['model']}; network {figures['network_ms_median']} ms")
     for n in SIZES:
         params = params_for(MODEL, n)
-        plain = Amcl(grid, spec, params, seed=0)
+        plain = compiled_filter(grid, spec, params)
         plain.initialize_pose(odom[0])
         plain_s = median_update_s(plain, odom, ranges, repeats, per_repeat)
         hybrid = HybridParams()
         proposal = LearnedProposal(hypotheses_of, UniformProposal(grid), hybrid)
-        filter_ = HybridAmcl(grid, spec, params, proposal, hybrid, seed=0)
+        weighting = ImportanceWeights(proposal, hybrid, map_bins(grid))
+        config = MclConfig.from_ros(params | {"publish_every_update": True}, source="benchmark")
+        filter_ = build_filter(grid, spec, config, 0, proposal=proposal, weighting=weighting)
         filter_.initialize_pose(odom[0])
         hybrid_s = median_update_s(filter_, odom, ranges, repeats, per_repeat)
         key = f"{n // 1000}k"

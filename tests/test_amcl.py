@@ -3,18 +3,18 @@
 from __future__ import annotations
 
 import math
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
-import yaml
 
 from scanloc.estimates import TABLE_COLUMNS
-from scanloc.localize.amcl import Amcl, AmclParams, run_amcl
+from scanloc.localize.catalog import META_KEYS, raw_config
 from scanloc.localize.clustering import cluster_estimate
 from scanloc.localize.kld_resampling import kld_limit
+from scanloc.localize.mcl.config import MclConfig, build_filter, known_keys, run_mcl
+from scanloc.localize.mcl.filter import FilterParams, ParticleFilter
 from scanloc.pose import compose, inverse
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.raycast import CastMap, cast_exact
@@ -47,6 +47,16 @@ def small_map(res: float = 0.05) -> OccupancyGrid:
     ]:
         box(x0, y0, x1, y1)
     return OccupancyGrid(cells, res)
+
+
+def ros(**params: object) -> MclConfig:
+    """The filter's parts from ROS-named parameters (ROS 1's defaults for the others)."""
+    return MclConfig.from_ros(params, source="test")
+
+
+def amcl_filter(grid: OccupancyGrid, seed: int = 0, **params: object) -> ParticleFilter:
+    """amcl (the particle filter with amcl's parts) from ROS-named parameters."""
+    return build_filter(grid, SPEC, ros(**params), seed=seed)
 
 
 def ug01_scans(grid: OccupancyGrid, poses: np.ndarray, seed: int) -> np.ndarray:
@@ -110,8 +120,8 @@ def test_heaviest_cluster_wins() -> None:
 
 def test_resampling_keeps_the_kld_count() -> None:
     grid = small_map()
-    params = AmclParams(resample_interval=1, update_min_d=0.0, update_min_a=0.0)
-    amcl = Amcl(grid, SPEC, params, seed=0)
+    params = FilterParams(resample_interval=1, update_min_d=0.0, update_min_a=0.0)
+    amcl = amcl_filter(grid, resample_interval=1, update_min_d=0.0, update_min_a=0.0)
     truth = np.array([[2.5, 2.0, 0.3]])
     amcl.initialize_pose(truth[0], np.diag([0.2**2, 0.2**2, 0.1**2]))  # a few dozen bins
     scan = ug01_scans(grid, truth, seed=1)[0]
@@ -138,7 +148,7 @@ def test_resampling_keeps_the_kld_count() -> None:
 
 def test_tracking_converges(drive: tuple[OccupancyGrid, Trajectory, np.ndarray]) -> None:
     grid, traj, ranges = drive
-    table = run_amcl(grid, SPEC, traj, ranges, AmclParams(), mode="tracking", seed=0).table
+    table = run_mcl(grid, SPEC, traj, ranges, ros(), mode="tracking", seed=0).table
     assert list(table.columns) == list(TABLE_COLUMNS)
     assert len(table) == len(traj.times)
     pos, head = errors(table, traj)
@@ -146,14 +156,14 @@ def test_tracking_converges(drive: tuple[OccupancyGrid, Trajectory, np.ndarray])
     assert head[100:].mean() < 2.0
     # the carried-forward estimate between updates, not a stale one: errors stay small everywhere
     assert pos.max() < 0.5
-    assert (table.n_particles >= AmclParams().min_particles).all()  # KLD never goes below it
-    rerun = run_amcl(grid, SPEC, traj, ranges, AmclParams(), mode="tracking", seed=0).table
+    assert (table.n_particles >= FilterParams().min_particles).all()  # KLD never goes below it
+    rerun = run_mcl(grid, SPEC, traj, ranges, ros(), mode="tracking", seed=0).table
     pd.testing.assert_frame_equal(table, rerun)
 
 
 def test_global_localization_converges(drive: tuple[OccupancyGrid, Trajectory, np.ndarray]) -> None:
     grid, traj, ranges = drive
-    table = run_amcl(grid, SPEC, traj, ranges, AmclParams(), mode="global", seed=0).table
+    table = run_mcl(grid, SPEC, traj, ranges, ros(), mode="global", seed=0).table
     pos, head = errors(table, traj)
     assert pos[0] > 0.5  # it did start lost
     assert pos[150:].max() < 0.5
@@ -163,7 +173,7 @@ def test_global_localization_converges(drive: tuple[OccupancyGrid, Trajectory, n
 
 def test_estimate_is_carried_by_odometry_between_updates() -> None:
     grid = small_map()
-    amcl = Amcl(grid, SPEC, AmclParams(), seed=0)
+    amcl = amcl_filter(grid, seed=0)
     truth = np.array([[2.5, 2.0, 0.3], [2.55, 2.0, 0.3]])
     scans = ug01_scans(grid, truth, seed=2)
     amcl.initialize_pose(truth[0], np.diag([1e-4, 1e-4, 1e-4]))
@@ -177,42 +187,63 @@ def test_estimate_is_carried_by_odometry_between_updates() -> None:
     np.testing.assert_allclose(compose(inverse(moved), moved), np.zeros(3), atol=1e-12)
 
 
-@pytest.mark.parametrize("name", ["amcl", "amcl_nav2"])
+@pytest.mark.parametrize("name", ["amcl", "amcl_nav2", "amcl_ros_exact", "amcl_best"])
 def test_shipped_config_sets_every_parameter_it_names(name: str) -> None:
-    cfg = yaml.safe_load((CONF / f"{name}.yaml").read_text())
-    params = AmclParams.from_config(cfg)
+    """Every filter parameter of a shipped config reaches the part that owns it, with the
+    type of its default (metadata such as `group` and `note` is skipped)."""
+    cfg = raw_config(name, CONF)
+    config = MclConfig.from_ros(cfg)
+    parts = (config.filter, config.odometry, config.laser, config.sensor, config)
+    reached = set()
     for key, value in cfg.items():
-        if key not in ("name", "kind", "mode", "seed"):
-            assert getattr(params, key) == value, key
-            assert type(getattr(params, key)) is type(getattr(AmclParams(), key)), key
+        if key in META_KEYS:
+            continue
+        owners = [part for part in parts if hasattr(part, key)]
+        if not owners:  # a key of a sensor model this config does not choose
+            assert key in known_keys(), key
+            continue
+        for part in owners:
+            assert getattr(part, key) == value, key
+            assert type(getattr(part, key)) is type(getattr(type(part)(), key)), key
+        reached.add(key)
+    assert {"laser_model_type", "odom_alpha1", "resample_interval", "laser_max_beams"} <= reached
 
 
 def test_configs_load_and_unknown_keys_are_rejected() -> None:
     # The ROS 1 config differs from the built-in (ROS 1) defaults only where it says so.
-    ros = AmclParams.from_config(yaml.safe_load((CONF / "amcl.yaml").read_text()))
-    defaults = AmclParams()
-    changed = {
-        f.name for f in fields(AmclParams) if getattr(ros, f.name) != getattr(defaults, f.name)
-    }
-    assert changed == {"initial_cov_xx", "initial_cov_yy", "initial_cov_aa"}
+    shipped = MclConfig.from_ros(raw_config("amcl", CONF))
+    assert shipped.with_filter(initial_cov_xx=0.25, initial_cov_yy=0.25) != ros()
+    assert (
+        shipped.with_filter(
+            initial_cov_xx=0.25, initial_cov_yy=0.25, initial_cov_aa=(math.pi / 12) ** 2
+        )
+        == ros()
+    )
     # Meta keys are skipped, an int is accepted for a float parameter and stored as a float.
-    meta = {"name": "x", "kind": "amcl", "mode": "global", "seed": 3}
-    loaded = AmclParams.from_config({**meta, "update_min_d": 1, "laser_max_beams": 40})
-    assert loaded == AmclParams(update_min_d=1.0, laser_max_beams=40)
-    assert isinstance(loaded.update_min_d, float)
-    with pytest.raises(ValueError, match="unknown amcl parameter 'max_beams'"):
-        AmclParams.from_config({"max_beams": 60})
-    with pytest.raises(ValueError, match="'max_particles' must be of type int"):
-        AmclParams.from_config({"max_particles": 10.5})
-    with pytest.raises(ValueError, match="odom_model_type"):
-        AmclParams(odom_model_type="omni")
+    meta = {"name": "x", "kind": "amcl", "mode": "global", "seed": 3, "group": "global"}
+    loaded = MclConfig.from_ros({**meta, "update_min_d": 1, "laser_max_beams": 40})
+    assert loaded.filter == FilterParams(update_min_d=1.0)
+    assert loaded.laser.laser_max_beams == 40
+    assert isinstance(loaded.filter.update_min_d, float)
+    # Errors name the config file and the field.
+    with pytest.raises(ValueError, match=r"conf/localizer/x\.yaml: field 'max_beams': unknown"):
+        MclConfig.from_ros({"name": "x", "max_beams": 60})
+    with pytest.raises(ValueError, match=r"amcl\.yaml parameter 'max_particles' must be of type"):
+        MclConfig.from_ros({"name": "amcl", "max_particles": 10.5})
+    with pytest.raises(ValueError, match=r"amcl\.yaml: odom_model_type must be one of"):
+        MclConfig.from_ros({"name": "amcl", "odom_model_type": "omni"})
+    with pytest.raises(ValueError, match=r"amcl\.yaml: field 'laser_model_type'"):
+        MclConfig.from_ros({"name": "amcl", "laser_model_type": "ray"})
     with pytest.raises(ValueError, match="min_particles"):
-        AmclParams(min_particles=10, max_particles=5)
+        FilterParams(min_particles=10, max_particles=5)
+    # A key of a model not chosen is still checked (ROS reads every parameter).
+    with pytest.raises(ValueError, match="laser_lambda_short"):
+        MclConfig.from_ros({"laser_model_type": "likelihood_field", "laser_lambda_short": 0.0})
 
 
 def test_bad_input_is_rejected_clearly() -> None:
     grid = small_map()
-    amcl = Amcl(grid, SPEC, seed=0)
+    amcl = amcl_filter(grid, seed=0)
     scan = np.full(SPEC.num_beams, 2.0, dtype=np.float32)
     with pytest.raises(RuntimeError, match="initialize"):
         amcl.update(np.zeros(3), scan)
@@ -223,7 +254,7 @@ def test_bad_input_is_rejected_clearly() -> None:
         amcl.update(np.array([0.0, np.inf, 0.0]), np.full(SPEC.num_beams, 2.0))
     blocked = OccupancyGrid(np.where(grid.free, UNKNOWN, grid.cells).astype(np.int8), 0.05)
     with pytest.raises(ValueError, match="no free cell"):
-        Amcl(blocked, SPEC)
+        amcl_filter(blocked)
     with pytest.raises(ValueError, match="symmetric PSD"):
         amcl.initialize_pose(np.zeros(3), -np.eye(3))
 
@@ -244,11 +275,11 @@ def test_map1_accuracy_with_the_shipped_config(stdr_maps_dir: Path) -> None:
     grid = load_map(stdr_maps_dir / "sparse_obstacles.yaml")
     traj = drive_trajectory(grid, 600, seed=7)
     ranges = ug01_scans(grid, traj.truth, seed=8)
-    params = AmclParams.from_config(yaml.safe_load((CONF / "amcl.yaml").read_text()))
+    params = MclConfig.from_ros(raw_config("amcl", CONF))
     pos, head = errors(
-        run_amcl(grid, SPEC, traj, ranges, params, mode="tracking", seed=0).table, traj
+        run_mcl(grid, SPEC, traj, ranges, params, mode="tracking", seed=0).table, traj
     )
     assert pos.mean() <= 0.05
     assert head.mean() <= 2.0
-    pos, _ = errors(run_amcl(grid, SPEC, traj, ranges, params, mode="global", seed=0).table, traj)
+    pos, _ = errors(run_mcl(grid, SPEC, traj, ranges, params, mode="global", seed=0).table, traj)
     assert pos[0] > 0.5 and pos[300:].max() < 0.5

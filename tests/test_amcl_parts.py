@@ -4,23 +4,21 @@ trigger, the resampling interval, its configs against ROS's defaults, and NaN re
 from __future__ import annotations
 
 import math
-from dataclasses import fields
-from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scanloc.localize.amcl import Amcl, AmclParams, run_amcl
+from scanloc.localize.catalog import META_KEYS, raw_config
 from scanloc.localize.kld_resampling import _pick_indices
+from scanloc.localize.mcl.config import MclConfig, known_keys, run_mcl
+from scanloc.localize.mcl.filter import FilterParams, ParticleFilter
 from scanloc.pose import compose, inverse, wrap_angle, wrap_pi
 from scanloc.sensor.laser import LaserSpec
 from scanloc.trajectory.drive import drive_trajectory
-from test_amcl import small_map, ug01_scans
+from test_amcl import CONF, amcl_filter, ros, small_map, ug01_scans
 
-CONF = Path(__file__).resolve().parents[1] / "conf" / "localizer"
 SPEC = LaserSpec()
 
 # ROS 1 amcl (noetic amcl_node.cpp `private_nh_.param` defaults) and nav2_amcl (amcl_node.cpp
@@ -85,15 +83,6 @@ SCANLOC_SWITCHES = {
     "beam_lut_resolution",
     "beam_lut_angles",
 }
-META = {"name", "kind", "mode", "seed"}
-
-
-def load_config(name: str) -> dict:
-    cfg = yaml.safe_load((CONF / f"{name}.yaml").read_text())
-    for parent in cfg.pop("defaults", []):
-        if parent != "_self_":
-            cfg = load_config(parent) | cfg
-    return cfg
 
 
 # ---------------------------------------------------------------- configs
@@ -108,23 +97,31 @@ def load_config(name: str) -> dict:
     ],
 )
 def test_configs_hold_the_reference_defaults(name: str, reference: dict, departures: set) -> None:
-    cfg = {k: v for k, v in load_config(name).items() if k not in META}
+    cfg = {k: v for k, v in raw_config(name, CONF).items() if k not in META_KEYS}
     # Every parameter the port has is written out in each config.
-    assert set(cfg) == {f.name for f in fields(AmclParams)}
+    assert set(cfg) == set(known_keys())
     for key, value in reference.items():
         if key not in departures:
             assert cfg[key] == pytest.approx(value), (name, key)
-    params = AmclParams.from_config(cfg)
+    params = MclConfig.from_ros(cfg)
     assert params.map_half_cell_offset is (name == "amcl_ros_exact")
     for key in departures:
         assert cfg[key] != pytest.approx(reference[key]), (name, key, "a documented departure")
     assert set(cfg) - set(reference) == SCANLOC_SWITCHES
 
 
-def test_port_defaults_are_ros1s() -> None:
-    defaults = AmclParams()
-    for key, value in ROS1_DEFAULTS.items():
-        assert getattr(defaults, key) == pytest.approx(value), key
+def test_a_config_without_parameters_runs_as_ross_defaults_written_out() -> None:
+    """The parts' built-in defaults are ROS 1's: a filter built from no parameters at all and
+    one built from ROS1_DEFAULTS written out draw and weigh exactly alike."""
+    grid = small_map()
+    traj = drive_trajectory(grid, 40, seed=2, clearance=0.25)
+    ranges = ug01_scans(grid, traj.truth, seed=5)
+    for mode in ("tracking", "global"):
+        implicit = run_mcl(grid, SPEC, traj, ranges, ros(), mode=mode, seed=1).table
+        written = run_mcl(grid, SPEC, traj, ranges, ros(**ROS1_DEFAULTS), mode=mode, seed=1).table
+        assert implicit.equals(written), mode
+    nav2 = run_mcl(grid, SPEC, traj, ranges, ros(**NAV2_DEFAULTS), seed=1).table
+    assert not nav2.equals(run_mcl(grid, SPEC, traj, ranges, ros(), seed=1).table)
 
 
 # ---------------------------------------------------------------- update trigger
@@ -141,8 +138,8 @@ class CountingModel:
         return np.full(len(poses), 2.0)
 
 
-def counting_filter(**params) -> tuple[Amcl, CountingModel]:
-    amcl = Amcl(small_map(), SPEC, AmclParams(**params), seed=0)
+def counting_filter(**params) -> tuple[ParticleFilter, CountingModel]:
+    amcl = amcl_filter(small_map(), seed=0, **params)
     model = CountingModel()
     amcl.sensor_model = model
     amcl.initialize_pose(np.array([2.5, 2.0, 0.3]), np.diag([1e-4, 1e-4, 1e-4]))
@@ -204,7 +201,7 @@ def test_first_estimate_is_the_initialisations_as_in_ros() -> None:
     """amcl publishes pf_init's cluster statistics on the first scan (before its sensor update):
     a filter whose sensor model pulls everything towards one corner still reports the mean of
     its initial particles."""
-    amcl = Amcl(small_map(), SPEC, AmclParams(), seed=0)
+    amcl = amcl_filter(small_map(), seed=0)
     amcl.initialize_pose(np.array([3.0, 2.5, 0.0]), np.diag([0.3**2, 0.3**2, 0.01]))
     initial_mean = amcl.poses[:, :2].mean(axis=0)
     amcl.sensor_model = lambda poses, scan, c: np.exp(-20.0 * poses[:, 0])  # favours small x
@@ -280,7 +277,7 @@ def test_kidnapped_robot_recovers_with_recovery_and_not_without(kidnapped) -> No
     grid, traj, ranges = kidnapped
 
     def errors(**params) -> np.ndarray:
-        table = run_amcl(grid, SPEC, traj, ranges, AmclParams(**params), seed=0).table
+        table = run_mcl(grid, SPEC, traj, ranges, ros(**params), seed=0).table
         err = np.hypot(table.x - traj.truth[:, 0], table.y - traj.truth[:, 1]).to_numpy()
         assert err[100:150].max() < 0.3  # tracking before the kidnap
         assert err[150] > 1.0  # and lost by it
@@ -299,8 +296,8 @@ def test_particle_count_falls_as_the_cloud_concentrates() -> None:
     grid = small_map()
     traj = drive_trajectory(grid, 300, seed=2, clearance=0.25)
     ranges = ug01_scans(grid, traj.truth, seed=5)
-    params = AmclParams()
-    table = run_amcl(grid, SPEC, traj, ranges, params, mode="global", seed=0).table
+    params = FilterParams()
+    table = run_mcl(grid, SPEC, traj, ranges, ros(), mode="global", seed=0).table
     counts = table.n_particles.to_numpy()
     assert counts[0] == params.max_particles  # a uniform cloud over the room
     # one tight cluster: a few hundred particles (more while turning spreads the headings)
@@ -316,7 +313,7 @@ def test_nan_readings_are_skipped_like_max_range_readings() -> None:
     truth = np.array([[2.5, 2.0, 0.3]])
     scan = ug01_scans(grid, truth, seed=1)[0]
     for model in ("likelihood_field", "likelihood_field_prob", "beam"):
-        amcl = Amcl(grid, SPEC, AmclParams(laser_model_type=model), seed=0)
+        amcl = amcl_filter(grid, seed=0, laser_model_type=model)
         amcl.initialize_pose(truth[0])
         with_nan = scan.copy()
         with_nan[::7] = np.nan

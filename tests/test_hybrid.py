@@ -14,18 +14,28 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from scanloc.evaluate.metrics import convergence_metrics
-from scanloc.localize.amcl import Amcl, AmclParams, run_filter
 from scanloc.localize.clustering import particle_bins
-from scanloc.localize.hybrid import BIN_VOLUME, HybridAmcl, HybridParams, LearnedProposal
+from scanloc.localize.hybrid import BIN_VOLUME, HybridParams, ImportanceWeights, LearnedProposal
 from scanloc.localize.hybrid import _mixture_density as mixture_density
-from scanloc.localize.proposals import UniformProposal
+from scanloc.localize.mcl.config import build_filter
+from scanloc.localize.mcl.estimator import map_bins
+from scanloc.localize.mcl.filter import ParticleFilter, run_filter
+from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.models.scanlocnet import Hypotheses
 from scanloc.pose import wrap_angle
 from scanloc.trajectory.drive import drive_trajectory
-from test_amcl import SPEC, small_map, ug01_scans
+from test_amcl import SPEC, amcl_filter, ros, small_map, ug01_scans
 
 GRID = small_map()
-LF_PROB = AmclParams(laser_model_type="likelihood_field_prob")
+# conf/localizer/hybrid.yaml's departures from amcl's defaults
+HYBRID_ROS = {"laser_model_type": "likelihood_field_prob", "resample_interval": 1}
+
+
+def hybrid_filter(proposal: LearnedProposal, hybrid: HybridParams, seed: int = 0) -> ParticleFilter:
+    """The particle filter with the learned proposal and its importance weights plugged in."""
+    weighting = ImportanceWeights(proposal, hybrid, map_bins(GRID))
+    config = ros(**HYBRID_ROS, publish_every_update=True)
+    return build_filter(GRID, SPEC, config, seed, proposal=proposal, weighting=weighting)
 
 
 def hypotheses_from(poses_of: Callable[[np.ndarray], np.ndarray], std: float) -> Callable:
@@ -87,32 +97,26 @@ def test_proposal_density_is_normalised_over_the_map() -> None:
     assert proposal.inferences == 1  # one network run per observed scan, however often used
 
 
-def test_proposed_particles_get_the_balance_heuristic_weights(monkeypatch) -> None:
-    """After a sensor update's mixture step, every weight equals p_prior(x) / m(x) with
+def test_proposed_particles_get_the_balance_heuristic_weights() -> None:
+    """After the weighting's mixture step, every weight equals p_prior(x) / m(x) with
     p_prior = (1 - ε) bel_motion + ε u and m = (1 - φ) bel_motion + φ q, bel_motion being
     the current particles' weight per KLD bin: recomputed here particle by particle."""
     traj = drive_trajectory(GRID, 30, seed=1, clearance=0.25)
     ranges = ug01_scans(GRID, traj.truth, seed=2)
     hybrid = HybridParams(mixture_share=0.2, kidnap_probability=0.05)
     proposal = proposal_at(traj.truth[:1] + np.array([0.3, -0.2, 0.1]), hybrid)
-    amcl = HybridAmcl(GRID, SPEC, LF_PROB, proposal, hybrid, seed=0)
+    amcl = hybrid_filter(proposal, hybrid)
     amcl.initialize_pose(traj.truth[0])
     amcl.update(traj.odometry[0], ranges[0])
     amcl.update(traj.odometry[0], ranges[0])  # resampled once: the mixture step is active
     before_poses, before_weights = amcl.poses.copy(), amcl.weights.copy()
-    seen = {}
-
-    def record(self, scan) -> None:
-        seen["poses"], seen["weights"] = self.poses.copy(), self.weights.copy()
-
-    monkeypatch.setattr(Amcl, "sensor_update", record)
-    amcl.sensor_update(ranges[1])
-    poses, weights = seen["poses"], seen["weights"]
+    poses, weights = amcl.weighting.predict(amcl.poses, amcl.weights, amcl.rng)
     n = len(before_poses)
     assert len(poses) == n + round(0.2 * n)
     np.testing.assert_array_equal(poses[:n], before_poses)
-    bins_before = particle_bins(before_poses, amcl._dims)
-    bins_all = particle_bins(poses, amcl._dims)
+    dims = map_bins(GRID)
+    bins_before = particle_bins(before_poses, dims)
+    bins_all = particle_bins(poses, dims)
     u = UniformProposal(GRID).uniform_density
     expected = np.empty(len(poses))
     for i, pose in enumerate(poses):
@@ -128,7 +132,7 @@ def test_proposed_particles_get_the_balance_heuristic_weights(monkeypatch) -> No
 def test_injected_and_initial_particles_are_weighted_u_over_q() -> None:
     hybrid = HybridParams()
     proposal = proposal_at(np.array([[2.0, 2.0, 0.0]]), hybrid)
-    amcl = HybridAmcl(GRID, SPEC, LF_PROB, proposal, hybrid, seed=0)
+    amcl = hybrid_filter(proposal, hybrid)
     poses, weights = amcl.injection(500)
     u = proposal.uniform.density(poses)
     q = 0.9 * brute_mixture(poses, proposal.means, proposal.stds, proposal.weights) + 0.1 * u
@@ -148,11 +152,10 @@ def truth_of_scan(traj, ranges, noise: float) -> Callable[[np.ndarray], np.ndarr
     return lambda scan: by_scan[np.asarray(scan).tobytes()] + rng.normal(0, noise, 3)
 
 
-def run_hybrid(traj, ranges, poses_of, params: AmclParams = LF_PROB, seed: int = 0):
+def run_hybrid(traj, ranges, poses_of, seed: int = 0):
     hybrid = HybridParams()
     proposal = LearnedProposal(hypotheses_from(poses_of, 0.1), UniformProposal(GRID), hybrid)
-    amcl = HybridAmcl(GRID, SPEC, params, proposal, hybrid, seed=seed)
-    return run_filter(amcl, traj, ranges, "global").table
+    return run_filter(hybrid_filter(proposal, hybrid, seed), traj, ranges, "global").table
 
 
 def test_a_perfect_proposal_localizes_on_the_first_update_and_after_a_kidnap(drive) -> None:
@@ -174,7 +177,7 @@ def test_a_useless_proposal_is_no_worse_than_the_uniform_one(drive) -> None:
     uniform = []
     useless = []
     for seed in (0, 1):
-        amcl = Amcl(GRID, SPEC, LF_PROB, seed=seed)
+        amcl = amcl_filter(GRID, seed=seed, laser_model_type="likelihood_field_prob")
         table = run_filter(amcl, traj, ranges, "global").table
         uniform.append(convergence_metrics(traj.truth[:180], table.iloc[:180]))
         table = run_hybrid(traj, ranges, lambda _: far, seed=seed)

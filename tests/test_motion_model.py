@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from scanloc.localize.motion_model import angle_diff, decompose, noise_sigmas, sample_motion
+from scanloc.localize.mcl.motion import angle_diff, decompose, noise_sigmas, sample_motion
 
 ALPHAS = (0.05, 0.02, 0.03, 0.01)  # small enough that a sampled translation stays > 0
 angles = st.floats(-20.0, 20.0, allow_nan=False)

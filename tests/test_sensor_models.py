@@ -10,7 +10,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scanloc.localize.amcl import Amcl, AmclParams
 from scanloc.localize.beam_model import (
     BeamMixture,
     beam_model_weights,
@@ -26,18 +25,19 @@ from scanloc.localize.likelihood_field_prob import (
     prob_weights,
     select_beams_prob,
 )
+from scanloc.localize.mcl.sensor_models import BeamParams, LikelihoodFieldProbParams
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.raycast import CastMap, cast_exact
 from scanloc.world.free_space import sample_free_poses
 from scanloc.world.occupancy_grid import OccupancyGrid
-from test_amcl import small_map, ug01_scans
+from test_amcl import amcl_filter, small_map, ug01_scans
 
 SPEC = LaserSpec()
-ROS1 = AmclParams()  # z_hit 0.95, z_short 0.1, z_max 0.05, z_rand 0.05, σ 0.2, λ 0.1
+ROS1 = BeamParams()  # z_hit 0.95, z_short 0.1, z_max 0.05, z_rand 0.05, σ 0.2, λ 0.1
 RANGE_MAX = 5.6
 
 
-def ros_beam_pz(obs: float, map_range: float, p: AmclParams, range_max: float) -> float:
+def ros_beam_pz(obs: float, map_range: float, p: BeamParams, range_max: float) -> float:
     """amcl_laser.cpp BeamModel's per-beam probability, statement by statement."""
     pz = 0.0
     z = obs - map_range
@@ -78,16 +78,23 @@ def test_beam_pz_is_rosss_formula(obs: float, map_range: float, at_max: bool) ->
     assert 0.0 <= got <= bound + p.laser_z_rand / RANGE_MAX
 
 
-def test_beam_mixture_defaults_are_ros1s() -> None:
-    m = BeamMixture()
-    assert (m.z_hit, m.z_short, m.z_max, m.z_rand, m.sigma_hit, m.lambda_short) == (
-        ROS1.laser_z_hit,
-        ROS1.laser_z_short,
-        ROS1.laser_z_max,
-        ROS1.laser_z_rand,
-        ROS1.laser_sigma_hit,
-        ROS1.laser_lambda_short,
-    )
+def test_the_beam_model_takes_its_mixture_from_the_ros_keys() -> None:
+    """The config's laser_* keys reach the beam model: its weights are the kernel's with the
+    mixture they name, not with the defaults."""
+    grid = small_map()
+    truth = np.array([[2.5, 2.0, 0.3]])
+    scan = ug01_scans(grid, truth, seed=3)[0]
+    scan[::50] = 0.4  # some short readings, so that z_short matters
+    mixture = {"z_hit": 0.5, "z_short": 0.3, "z_max": 0.1, "z_rand": 0.2, "sigma_hit": 0.1}
+    ros = {f"laser_{key}": value for key, value in mixture.items()}
+    amcl = amcl_filter(grid, laser_model_type="beam", laser_lambda_short=0.5, **ros)
+    poses = truth + np.random.default_rng(2).normal(0.0, 0.2, (50, 3))
+    obs, b = select_beams_beam_model(scan, SPEC.beam_angles(), SPEC.range_min, RANGE_MAX, 30)
+    table = amcl.sensor_model.table
+    expected = beam_model_weights(table, poses, obs, b, BeamMixture(**mixture, lambda_short=0.5))
+    got = amcl.sensor_model(poses, scan, False)
+    np.testing.assert_array_equal(got, expected)
+    assert not np.allclose(got, beam_model_weights(table, poses, obs, b, BeamMixture()))
 
 
 def test_beam_pz_cases_by_hand() -> None:
@@ -150,7 +157,7 @@ def test_beam_model_prefers_the_true_pose(room) -> None:
     grid, _, _ = room
     truth = np.array([[2.5, 2.0, 0.3]])
     scan = ug01_scans(grid, truth, seed=1)[0]
-    amcl = Amcl(grid, SPEC, AmclParams(laser_model_type="beam"), seed=0)
+    amcl = amcl_filter(grid, seed=0, laser_model_type="beam")
     offsets = np.array([[0, 0, 0], [0.3, 0, 0], [0, 0.3, 0], [0, 0, 0.2], [1.0, 1.0, 1.0]])
     weights = amcl.sensor_model(truth + offsets, scan, False)
     assert weights.argmax() == 0 and weights[0] > 1.5 * weights[1:].max()
@@ -175,7 +182,7 @@ def test_range_table_refuses_a_map_too_large_with_the_numbers() -> None:
 # ---------------------------------------------------------------- likelihood_field_prob
 
 
-def nav2_prob_weight(grid, pose, scan, p: AmclParams, max_beams: int) -> float:
+def nav2_prob_weight(grid, pose, scan, p: LikelihoodFieldProbParams, max_beams: int) -> float:
     """nav2 LikelihoodFieldModelProb::sensorFunction for one particle, no beam skipping."""
     dist = distance_map(grid, p.laser_likelihood_max_dist)
     step = max(1, math.ceil(len(scan) / max_beams))
@@ -208,7 +215,7 @@ def test_likelihood_field_prob_equals_a_literal_transcription_of_nav2() -> None:
     )
     scan = ug01_scans(grid, np.array([[2.5, 2.0, 0.3]]), seed=1)[0]
     scan[5], scan[48] = np.nan, 0.0  # a NaN, a short reading
-    p = AmclParams(laser_model_type="likelihood_field_prob", laser_z_hit=0.5, laser_z_rand=0.5)
+    p = LikelihoodFieldProbParams(laser_z_hit=0.5, laser_z_rand=0.5)
     field = build_likelihood_field_prob(grid, 0.5, 0.5, 0.2, 2.0, RANGE_MAX, 0.5)
     r, b = select_beams_prob(scan, SPEC.beam_angles(), 0.02, RANGE_MAX, 60)
     assert len(b) <= math.ceil(667 / 12)  # nav2's step: ceil(667 / 60) = 12

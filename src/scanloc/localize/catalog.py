@@ -16,6 +16,7 @@ metadata is inherited too, unless the file sets its own.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,3 +106,12 @@ def stage_localizers(stage: str, conf_dir: Path = CONF_DIR) -> list[str]:
     if stage not in STAGES:
         raise ValueError(f"stage {stage!r}: expected one of {list(STAGES)}")
     return [n for n, info in load_catalog(conf_dir).items() if stage in info.stages]
+
+
+def localizer_overrides(stage: str, conf_dir: Path | None = None) -> list[str]:
+    """Hydra overrides that compose the localizers `stage` runs into its config, each under
+    `localizers.<name>` as a `localizer@localizers.<name>` defaults entry would. `conf_dir`
+    defaults to the stages' config tree: $SCANLOC_CONF/localizer, else conf/localizer."""
+    if conf_dir is None:
+        conf_dir = Path(os.environ.get("SCANLOC_CONF", "conf")) / "localizer"
+    return [f"+localizer@localizers.{n}={n}" for n in stage_localizers(stage, conf_dir)]

@@ -3,7 +3,7 @@
 The CNN localizes every scan on its own, globally, so its errors do not accumulate but do not
 average out either; odometry is smooth but drifts. The filter combines them:
 - Prediction: each step's odometry change, split as amcl's odometry model splits it
-  (`motion_model.decompose`: rot1, trans, rot2), moves the estimate; the process noise is amcl's
+  (`mcl.motion.decompose`: rot1, trans, rot2), moves the estimate; the process noise is amcl's
   `diff-corrected` model (standard deviations sqrt(alpha1·rot² + alpha2·trans²) for the
   rotations, sqrt(alpha3·trans² + alpha4·(rot1² + rot2²)) for the translation, reverse driving
   folded like forward) mapped through the motion's Jacobian. Only increments are used, so the
@@ -38,7 +38,7 @@ import pandas as pd
 
 from scanloc.estimates import estimate_table
 from scanloc.localize.config_params import params_from_config
-from scanloc.localize.motion_model import decompose, noise_sigmas
+from scanloc.localize.mcl.motion import decompose, noise_sigmas
 from scanloc.pose import wrap_angle
 
 

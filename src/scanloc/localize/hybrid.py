@@ -1,5 +1,9 @@
 """Hybrid localization: amcl with the learned localizer's hypotheses as its proposal.
 
+Two parts plugged into amcl's particle filter (localize/mcl/): `LearnedProposal`, the
+proposal, and `ImportanceWeights`, how the particles it proposes are weighted; conf/localizer/
+hybrid.yaml sets the rest (resample and estimate on every update).
+
 amcl finds itself slowly (global localization from a uniform cloud) and rarely recovers from a
 kidnap (random free poses seldom land near the truth); the learned localizer is global but
 coarse. Here amcl keeps its parts (motion model, sensor model, KLD resampling, clusters) and
@@ -20,25 +24,23 @@ for mobile robots", 2001):
   m = (1 - φ) · bel⁻_motion(x) + φ · q(x) the density they were drawn from, and bel⁻ =
   (1 - ε) · bel⁻_motion + ε · u the prediction with a kidnap probability ε; bel⁻_motion is the
   motion-predicted particles' density, histogrammed in amcl's 0.5 m × 0.5 m × 10° bins.
-The hybrid estimates after every update (not only after resampling) and resamples every update.
+  These weights are approximate (they replace the predicted particles' weights rather than
+  multiply them); they are kept as they are here.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numba
 import numpy as np
 
-from scanloc.localize.amcl import Amcl, AmclParams
 from scanloc.localize.clustering import BIN_THETA, BIN_XY, particle_bins
 from scanloc.localize.config_params import params_from_config
-from scanloc.localize.proposals import UniformProposal
+from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.pose import wrap_angle, wrap_pi
-from scanloc.sensor.laser import LaserSpec
-from scanloc.world.occupancy_grid import OccupancyGrid
 
 BIN_VOLUME = BIN_XY * BIN_XY * BIN_THETA  # m² rad
 
@@ -161,74 +163,52 @@ class LearnedProposal:
         return (1.0 - share) * mixture + share * self.uniform.density(poses)
 
 
-class HybridAmcl(Amcl):
-    """amcl with a learned proposal (see the module docstring)."""
+class ImportanceWeights:
+    """The hybrid's weighting of proposed particles (see the module docstring): u(x) / q(x) for
+    the initialisation's and the recovery's, and the balance heuristic over the motion-predicted
+    particles plus `mixture_share` · N from q at every update."""
 
-    def __init__(
-        self,
-        grid: OccupancyGrid,
-        laser_spec: LaserSpec,
-        params: AmclParams,
-        proposal: LearnedProposal,
-        hybrid: HybridParams,
-        seed: int = 0,
-    ) -> None:
-        params = replace(params, publish_every_update=True, resample_interval=1)
-        super().__init__(grid, laser_spec, params, seed=seed, proposal=proposal)
-        self.hybrid = hybrid
+    def __init__(self, proposal: LearnedProposal, params: HybridParams, dims: np.ndarray) -> None:
+        self.proposal, self.params, self.dims = proposal, params, dims
         self.uniform = proposal.uniform
-        self._pending_global = False
 
-    def initialize_global(self) -> None:
-        """Global localization from the first scan's proposal (see update)."""
-        self._pending_global = True
-        self._initialised = True
-
-    def update(self, odom_pose: np.ndarray, ranges: np.ndarray):
-        self.proposal.observe(np.asarray(ranges))
-        if self._pending_global:
-            self._pending_global = False
-            n = self.params.max_particles
-            poses = self.proposal.sample(n, self.rng)
-            self.reset(poses, self.uniform.density(poses) / self.proposal.density(poses))
-        return super().update(odom_pose, ranges)
-
-    def sensor_update(self, ranges: np.ndarray) -> None:
-        """Add the proposal's share of particles, weight every particle by the balance
-        heuristic, then amcl's sensor update."""
-        h = self.hybrid
-        if self._pf_init and h.mixture_share > 0 and self._resample_count > 0:
-            n = len(self.poses)
-            extra = self.proposal.sample(max(1, round(h.mixture_share * n)), self.rng)
-            motion = np.concatenate([self.poses, extra])
-            bel_motion = self._motion_density(motion)
-            prior = (1.0 - h.kidnap_probability) * bel_motion
-            prior += h.kidnap_probability * self.uniform.density(motion)
-            drawn = (1.0 - h.mixture_share) * bel_motion + h.mixture_share * self.proposal.density(
-                motion
-            )
-            with np.errstate(divide="ignore", invalid="ignore"):
-                weights = np.where(drawn > 0, prior / drawn, 0.0)
-            self.poses = np.ascontiguousarray(motion)
-            self.weights = (
-                weights / weights.sum()
-                if weights.sum() > 0
-                else np.full(len(motion), 1.0 / len(motion))
-            )
-        super().sensor_update(ranges)
-
-    def _motion_density(self, poses: np.ndarray) -> np.ndarray:
-        """The motion-predicted particles' density (per m² rad) at `poses`, histogrammed in
-        amcl's bins (the current weights on the current particles)."""
-        hist = np.zeros(int(np.prod(self._dims[2:])))
-        np.add.at(hist, particle_bins(self.poses, self._dims), self.weights)
-        return hist[particle_bins(np.ascontiguousarray(poses), self._dims)] / BIN_VOLUME
-
-    def injection(self, m: int) -> tuple[np.ndarray, np.ndarray]:
-        """Recovery poses from the learned proposal, weighted u(x) / q(x) (they stand for
-        amcl's uniform injection)."""
-        poses = self.proposal.sample(m, self.rng)
+    def _prior_over_proposal(self, poses: np.ndarray) -> np.ndarray:
         q = self.proposal.density(poses)
         with np.errstate(divide="ignore", invalid="ignore"):
-            weights = np.where(q > 0, self.uniform.density(poses) / q, 0.0)
-        return poses, weights
+            return np.where(q > 0, self.uniform.density(poses) / q, 0.0)
+
+    def initial_weights(self, poses: np.ndarray) -> np.ndarray:
+        return self.uniform.density(poses) / self.proposal.density(poses)
+
+    def injection_weights(self, poses: np.ndarray) -> np.ndarray:
+        """Recovery poses stand for amcl's uniform injection: weighted u(x) / q(x)."""
+        return self._prior_over_proposal(poses)
+
+    def predict(
+        self, poses: np.ndarray, weights: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Add the proposal's share of particles and weight every particle by the balance
+        heuristic (the sensor update follows)."""
+        h = self.params
+        if h.mixture_share <= 0:
+            return poses, weights
+        extra = self.proposal.sample(max(1, round(h.mixture_share * len(poses))), rng)
+        motion = np.concatenate([poses, extra])
+        bel_motion = self.motion_density(poses, weights, motion)
+        prior = (1.0 - h.kidnap_probability) * bel_motion
+        prior += h.kidnap_probability * self.uniform.density(motion)
+        drawn = (1.0 - h.mixture_share) * bel_motion + h.mixture_share * self.proposal.density(
+            motion
+        )
+        with np.errstate(divide="ignore", invalid="ignore"):
+            new = np.where(drawn > 0, prior / drawn, 0.0)
+        total = new.sum()
+        new = new / total if total > 0 else np.full(len(motion), 1.0 / len(motion))
+        return np.ascontiguousarray(motion), new
+
+    def motion_density(self, poses: np.ndarray, weights: np.ndarray, at: np.ndarray) -> np.ndarray:
+        """The density (per m² rad) of the weighted particles `poses` at `at`, histogrammed in
+        amcl's bins."""
+        hist = np.zeros(int(np.prod(self.dims[2:])))
+        np.add.at(hist, particle_bins(poses, self.dims), weights)
+        return hist[particle_bins(np.ascontiguousarray(at), self.dims)] / BIN_VOLUME

@@ -1,5 +1,10 @@
 """The kinds of localizer the localize stage can run, chosen by the `kind` of a localizer config
-(conf/localizer/<name>.yaml), each a function (config, inputs) -> Localization."""
+(conf/localizer/<name>.yaml): each a function (config, inputs) -> Localization, registered
+under its kind by `@register_kind("<kind>")`. A new kind is one registered function; a new
+localizer of an existing kind is one yaml file.
+
+The amcl variants and the hybrid are configurations of one particle filter (localize/mcl/):
+the hybrid plugs its learned proposal and importance weights into it."""
 
 from __future__ import annotations
 
@@ -13,14 +18,15 @@ from typing import Any
 import numpy as np
 
 from scanloc.estimates import Localization, table_covariances, table_poses
-from scanloc.localize.amcl import AmclParams, run_amcl, run_filter
-from scanloc.localize.catalog import META_KEYS
 from scanloc.localize.cnn_localizer import localize_cnn
 from scanloc.localize.fusion import FusionParams, fuse_odometry
-from scanloc.localize.hybrid import HybridAmcl, HybridParams, LearnedProposal
+from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal
 from scanloc.localize.hypothesis_tracker import TrackerParams, track_hypotheses
 from scanloc.localize.learned_localizer import localize_learned, scan_hypotheses
-from scanloc.localize.proposals import UniformProposal
+from scanloc.localize.mcl.config import MclConfig, build_filter, run_mcl
+from scanloc.localize.mcl.estimator import map_bins
+from scanloc.localize.mcl.filter import run_filter
+from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.sensor.laser import LaserSpec
 from scanloc.trajectory.format import Trajectory
 from scanloc.world.map_server import load_map
@@ -28,6 +34,21 @@ from scanloc.world.occupancy_grid import OccupancyGrid
 
 # Keys of a hybrid config beside amcl's parameters: the learned model and its proposal.
 HYBRID_KEYS = ("model", "k", "k_raw", "nms_distance", "nms_angle_deg", "proposal")
+
+Kind = Callable[[Mapping[str, Any], "LocalizeInputs"], Localization]
+LOCALIZER_KINDS: dict[str, Kind] = {}
+
+
+def register_kind(kind: str) -> Callable[[Kind], Kind]:
+    """Register the decorated function as the runner of localizer configs of `kind`."""
+
+    def register(run: Kind) -> Kind:
+        if kind in LOCALIZER_KINDS and LOCALIZER_KINDS[kind] is not run:
+            raise ValueError(f"localizer kind {kind!r} is registered twice")
+        LOCALIZER_KINDS[kind] = run
+        return run
+
+    return register
 
 
 @dataclass(frozen=True)
@@ -59,41 +80,42 @@ def ensemble_model_paths(cfg: Mapping[str, Any]) -> list[Path]:
     return paths
 
 
-def amcl_params(cfg: Mapping[str, Any]) -> AmclParams:
-    """AmclParams from a localizer config of kind amcl (or one built on it)."""
-    return AmclParams.from_config({k: v for k, v in cfg.items() if k not in META_KEYS})
-
-
+@register_kind("amcl")
 def run_amcl_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
-    """ROS amcl, tracking from the true first pose or global (`mode`)."""
+    """ROS amcl (the particle filter with amcl's parts), tracking from the true first pose or
+    global (`mode`)."""
     start = time.perf_counter()
     grid = inputs.grid
     loaded = time.perf_counter() - start
-    run = run_amcl(
+    run = run_mcl(
         grid,
         inputs.laser,
         inputs.trajectory,
         inputs.ranges,
-        amcl_params(cfg),
+        MclConfig.from_ros(cfg),
         mode=str(cfg.get("mode", "tracking")),
         seed=int(cfg.get("seed", 0)),
     )
     return run._replace(setup_s=run.setup_s + loaded)
 
 
+@register_kind("hybrid")
 def run_hybrid_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
-    """amcl with the learned localizer's hypotheses as its proposal (hybrid.py)."""
+    """The particle filter with the learned localizer's hypotheses as its proposal and their
+    importance weights (hybrid.py)."""
     start = time.perf_counter()
     hybrid = HybridParams.from_config(dict(cfg["proposal"]))
     grid = inputs.grid
-    params = amcl_params({k: v for k, v in cfg.items() if k not in HYBRID_KEYS})
+    config = MclConfig.from_ros({k: v for k, v in cfg.items() if k not in HYBRID_KEYS})
     _, hypotheses_of, _ = scan_hypotheses(Path(cfg["model"]), inputs.ranges, **learned_options(cfg))
-    proposal = LearnedProposal(
-        hypotheses_of, UniformProposal(grid, params.map_half_cell_offset), hybrid
+    uniform = UniformProposal(grid, config.map_half_cell_offset)
+    proposal = LearnedProposal(hypotheses_of, uniform, hybrid)
+    weighting = ImportanceWeights(proposal, hybrid, map_bins(grid))
+    pf = build_filter(
+        grid, inputs.laser, config, int(cfg.get("seed", 0)), proposal=proposal, weighting=weighting
     )
-    amcl = HybridAmcl(grid, inputs.laser, params, proposal, hybrid, seed=int(cfg.get("seed", 0)))
     return run_filter(
-        amcl,
+        pf,
         inputs.trajectory,
         inputs.ranges,
         str(cfg.get("mode", "global")),
@@ -101,12 +123,14 @@ def run_hybrid_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localizat
     )
 
 
+@register_kind("cnn")
 def run_cnn_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """The paper's CNN localizers: one network, or the mean of an ensemble, per scan."""
     traj = inputs.trajectory
     return localize_cnn(ensemble_model_paths(cfg), inputs.ranges, traj.times)
 
 
+@register_kind("fusion")
 def run_fusion_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """The CNN ensemble's poses fused with odometry by an EKF (fusion.py)."""
     params = FusionParams.from_config(dict(cfg["fusion"]))
@@ -130,6 +154,7 @@ def learned_options(cfg: Mapping[str, Any]) -> dict[str, Any]:
     return {key: cfg[key] for key in keys if key in cfg}
 
 
+@register_kind("learned")
 def run_learned_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """scanloc's learned localizer: ranked hypotheses from each scan alone."""
     return localize_learned(
@@ -137,6 +162,7 @@ def run_learned_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localiza
     )
 
 
+@register_kind("learned_tracking")
 def run_learned_tracking_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """The learned localizer's hypotheses tracked over time with odometry (a Gaussian sum)."""
     params = TrackerParams.from_config(dict(cfg["tracker"]))
@@ -149,16 +175,6 @@ def run_learned_tracking_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) ->
     return Localization(
         table, learned.setup_s, learned.scan_seconds + per_step, hypotheses=learned.hypotheses
     )
-
-
-LOCALIZER_KINDS: dict[str, Callable[[Mapping[str, Any], LocalizeInputs], Localization]] = {
-    "amcl": run_amcl_kind,
-    "cnn": run_cnn_kind,
-    "fusion": run_fusion_kind,
-    "learned": run_learned_kind,
-    "learned_tracking": run_learned_tracking_kind,
-    "hybrid": run_hybrid_kind,
-}
 
 
 def run_localizer(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:

@@ -1,31 +1,52 @@
 """`localize` and `localize_cnn` stages (paper §4.4): localizers along one trajectory, one row
-per step each; a localizer with ranked hypotheses also writes them (<name>_hypotheses.npz)."""
+per step each; a localizer with ranked hypotheses also writes them (<name>_hypotheses.npz).
+
+A stage runs the localizers whose conf/localizer/<name>.yaml lists it under `stages`
+(scanloc.localize.catalog), each composed by Hydra as a `localizer@localizers.<name>` entry of
+the stage's config, with the stage's own overrides (map_name, sensor, ...), so that adding a
+localizer is adding one yaml file. `++localizers.<name>.<key>=...` overrides a listed
+localizer's field; `only=<name>` runs just one; `localizer=<config>` runs that config alone.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from hydra import compose
+from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from scanloc.io import atomic_path, write_json, write_npz
+from scanloc.localize.catalog import localizer_overrides
 from scanloc.localize.kinds import LocalizeInputs, run_localizer
 from scanloc.progress import steps
 from scanloc.sensor.simulate import laser_spec_from_config
-from scanloc.stages._app import stage_main, timed_stage, to_dict
+from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
 from scanloc.trajectory.format import load_trajectory
 
 
-def localize_all(cfg: DictConfig) -> dict[str, Any]:
-    """Run cfg.localizers (or just cfg.only, or the single cfg.localizer) on the trajectory;
-    write each table; return the timing figures per localizer."""
+def localizers_to_run(
+    cfg: DictConfig, stage: str, overrides: Sequence[str]
+) -> Mapping[str, DictConfig]:
+    """The localizers this run runs, by name: the single `localizer` when one is chosen, else
+    those conf/localizer lists for `stage`, composed into the stage's config by Hydra with the
+    run's `overrides`."""
+    if cfg.get("localizer") is not None:
+        return {str(cfg.localizer.name): cfg.localizer}
+    listed = localizer_overrides(stage, Path(conf_dir()) / "localizer")
+    return compose(config_name=stage, overrides=[*overrides, *listed]).localizers
+
+
+def localize_all(cfg: DictConfig, stage: str, overrides: Sequence[str]) -> dict[str, Any]:
+    """Run the stage's localizers (or just cfg.only) on the trajectory; write each table;
+    return the timing figures per localizer."""
     traj, ranges = load_trajectory(cfg.trajectory_dir)
     inputs = LocalizeInputs(
         traj, ranges, Path(cfg.map_yaml), laser_spec_from_config(to_dict(cfg.sensor))
     )
-    localizers = cfg.localizers
-    if cfg.get("localizer") is not None:
-        localizers = {str(cfg.localizer.name): cfg.localizer}
+    localizers = localizers_to_run(cfg, stage, overrides)
     names = list(localizers) if cfg.only is None else [str(cfg.only)]
     unknown = [n for n in names if n not in localizers]
     if unknown:
@@ -38,7 +59,8 @@ def localize_all(cfg: DictConfig) -> dict[str, Any]:
         localizer = to_dict(localizers[name])
         if localizer.get("name") != name:
             raise ValueError(
-                f"conf/localizer: the config under '{name}' is named {localizer.get('name')!r}"
+                f"conf/localizer/{name}.yaml: field 'name': expected {name!r}, "
+                f"got {localizer.get('name')!r}"
             )
         run = run_localizer(localizer, inputs)
         with atomic_path(out_dir / f"{name}.csv") as tmp:
@@ -49,9 +71,13 @@ def localize_all(cfg: DictConfig) -> dict[str, Any]:
     return timings
 
 
-def run_stage(cfg: DictConfig, stage: str) -> None:
+def run_stage(cfg: DictConfig, stage: str, overrides: Sequence[str] | None = None) -> None:
+    """The stage: localize, then write the timing figures. `overrides` are the run's
+    command-line overrides (default: Hydra's record of them)."""
+    if overrides is None:
+        overrides = list(HydraConfig.get().overrides.task)
     with timed_stage(f"{stage}_{cfg.trajectory}", cfg.timing_dir):
-        timings = localize_all(cfg)
+        timings = localize_all(cfg, stage, overrides)
         write_json(Path(cfg.timing_path), timings)
 
 

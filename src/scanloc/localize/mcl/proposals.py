@@ -4,6 +4,10 @@ amcl uses it to initialise without a pose (global localization) and to inject ra
 when its recovery averages say the filter may be lost. `UniformProposal` is amcl's: free cell
 centres drawn uniformly, headings uniform. A proposal also knows its density q(x) (per m² and
 radian), which importance sampling needs to weight what it proposes against the prior.
+
+`Weighting` says how proposed particles are weighted; `PriorWeights` is amcl's: the uniform
+proposal samples the prior itself, so proposed particles weigh as much as resampled ones.
+The hybrid's importance weights (localize/hybrid.py) are the other implementation.
 """
 
 from __future__ import annotations
@@ -17,7 +21,15 @@ from scanloc.world.occupancy_grid import OccupancyGrid
 
 
 class Proposal(Protocol):
-    """A distribution over poses (x, y, θ) that can be sampled and evaluated."""
+    """A distribution over poses (x, y, θ) that can be sampled and evaluated, possibly
+    conditioned on the current scan (`needs_scan`: the filter then calls `observe(scan)` with
+    every scan and defers a global initialisation to the first scan)."""
+
+    needs_scan: bool
+
+    def observe(self, scan: np.ndarray) -> None:
+        """Condition on the scan of the coming update."""
+        ...
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """n poses (n, 3), θ in (-π, π]."""
@@ -31,6 +43,8 @@ class Proposal(Protocol):
 class UniformProposal:
     """Uniform over the free cells (amcl's uniformPoseGenerator with its free-cell list):
     a free cell's centre, heading uniform; 0.5 of a cell off when `half_cell_offset` (amcl)."""
+
+    needs_scan = False
 
     def __init__(self, grid: OccupancyGrid, half_cell_offset: bool = False) -> None:
         free_rows, free_cols = np.nonzero(grid.free)
@@ -48,6 +62,9 @@ class UniformProposal:
         # per m² and radian: 1 / (free area · 2π)
         self.uniform_density = 1.0 / (free_rows.size * grid.resolution**2 * 2.0 * math.pi)
 
+    def observe(self, scan: np.ndarray) -> None:
+        """The uniform proposal ignores the scan."""
+
     def poses_from_uniforms(self, u: np.ndarray) -> np.ndarray:
         """Poses from uniforms u (n, 2) in [0, 1): u[:, 0] picks the cell, u[:, 1] the heading."""
         n_free = len(self.free_xy)
@@ -64,3 +81,37 @@ class UniformProposal:
         free = np.zeros(len(poses), dtype=bool)
         free[inside] = self.free[row[inside], col[inside]]
         return np.where(free, self.uniform_density, 0.0)
+
+
+class Weighting(Protocol):
+    """How the filter weights particles its proposal put there."""
+
+    def initial_weights(self, poses: np.ndarray) -> np.ndarray:
+        """Weights of a global initialisation's particles (normalised by the filter)."""
+        ...
+
+    def injection_weights(self, poses: np.ndarray) -> np.ndarray:
+        """Weights of the poses a recovery injects while resampling (a resampled one: 1)."""
+        ...
+
+    def predict(
+        self, poses: np.ndarray, weights: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The particle set after the motion update, before the sensor update (a hook to mix
+        in proposed particles); not called on the first update after an initialisation."""
+        ...
+
+
+class PriorWeights:
+    """amcl's weighting: proposed particles sample the prior (uniform) directly."""
+
+    def initial_weights(self, poses: np.ndarray) -> np.ndarray:
+        return np.full(len(poses), 1.0 / len(poses))
+
+    def injection_weights(self, poses: np.ndarray) -> np.ndarray:
+        return np.ones(len(poses))
+
+    def predict(
+        self, poses: np.ndarray, weights: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        return poses, weights

@@ -1,0 +1,129 @@
+"""The localize stage runs the localizers conf/localizer lists for it: adding one is one yaml
+file (plus one registered kind for a new kind), and a listed localizer's field can be
+overridden from the command line."""
+
+from __future__ import annotations
+
+import re
+import shutil
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+from hydra import compose, initialize_config_dir
+
+from scanloc.estimates import Localization, estimate_table
+from scanloc.localize.catalog import localizer_overrides, stage_localizers
+from scanloc.localize.kinds import LOCALIZER_KINDS, LocalizeInputs, register_kind
+from scanloc.stages.localize import run_stage
+from scanloc.trajectory.drive import drive_trajectory
+from scanloc.trajectory.format import save_trajectory
+from scanloc.world.map_server import save_map
+from test_amcl import small_map, ug01_scans
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+DUMMY = """\
+name: dummy
+kind: dummy_offset
+group: tracking
+stages: [localize]
+note: "a test's localizer: the truth, shifted by `offset`"
+offset: [0.25, 0.0, 0.0]
+"""
+
+
+@pytest.fixture
+def dummy_kind() -> Iterator[None]:
+    """A kind registered by the test alone: the true poses shifted by the config's offset."""
+
+    @register_kind("dummy_offset")
+    def run_dummy(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+        traj = inputs.trajectory
+        steps = len(traj.times)
+        means = traj.truth + np.asarray(cfg["offset"], dtype=np.float64)
+        covs = np.tile(np.eye(3) * 0.01, (steps, 1, 1))
+        table = estimate_table(np.arange(steps), traj.times, means, covs, 1)
+        return Localization(table, 0.0, np.zeros(steps))
+
+    yield
+    del LOCALIZER_KINDS["dummy_offset"]
+
+
+@pytest.fixture
+def run_dir(tmp_path: Path) -> Path:
+    """A copy of conf/ where only the dummy localizer lists the localize stage, a small map
+    and a 20-step drive through it."""
+    conf = tmp_path / "conf"
+    shutil.copytree(CONF, conf)
+    for path in (conf / "localizer").glob("*.yaml"):
+        text = re.sub(r"^stages: \[localize\]$", "stages: []", path.read_text(), flags=re.M)
+        path.write_text(text)
+    (conf / "localizer" / "dummy.yaml").write_text(DUMMY)
+    grid = small_map()
+    save_map(grid, tmp_path / "map" / "map.yaml")
+    traj = drive_trajectory(grid, 20, seed=1, clearance=0.25)
+    save_trajectory(traj, tmp_path / "traj", ug01_scans(grid, traj.truth, seed=2), meta={})
+    return tmp_path
+
+
+def localize(run_dir: Path, monkeypatch: pytest.MonkeyPatch, *extra: str) -> Path:
+    """The stage, in this process (where the dummy kind is registered), on run_dir's inputs."""
+    conf = run_dir / "conf"
+    monkeypatch.setenv("SCANLOC_CONF", str(conf))
+    out = run_dir / "out"
+    overrides = [
+        "trajectory=tiny",
+        f"trajectory_dir={run_dir / 'traj'}",
+        f"map_yaml={run_dir / 'map' / 'map.yaml'}",
+        f"out_dir={out}",
+        f"timing_path={run_dir / 'timing.json'}",
+        f"timing_dir={run_dir / 'timing'}",
+        *extra,
+    ]
+    with initialize_config_dir(config_dir=str(conf), version_base=None):
+        run_stage(compose("localize", overrides=overrides), "localize", overrides)
+    return out
+
+
+def test_a_localizer_added_as_one_yaml_file_is_run_by_the_stage(
+    run_dir: Path, dummy_kind: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    assert stage_localizers("localize", run_dir / "conf" / "localizer") == ["dummy"]
+    out = localize(run_dir, monkeypatch)
+    assert sorted(p.name for p in out.iterdir()) == ["dummy.csv"]
+    table = pd.read_csv(out / "dummy.csv")
+    truth = np.load(run_dir / "traj" / "truth.npy")
+    np.testing.assert_allclose(table.x - truth[:, 0], 0.25, atol=1e-6)
+    assert (run_dir / "timing.json").read_text().count('"dummy"') == 1
+    # A listed localizer's field, overridden on the command line, reaches its kind.
+    localize(run_dir, monkeypatch, "++localizers.dummy.offset=[0.0,-0.5,0.0]")
+    table = pd.read_csv(out / "dummy.csv")
+    np.testing.assert_allclose(table.x - truth[:, 0], 0.0, atol=1e-6)
+    np.testing.assert_allclose(table.y - truth[:, 1], -0.5, atol=1e-6)
+
+
+def test_only_must_name_a_listed_localizer(
+    run_dir: Path, dummy_kind: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with pytest.raises(ValueError, match=r"only=amcl: not one of this stage's localizers"):
+        localize(run_dir, monkeypatch, "only=amcl")
+
+
+def test_the_shipped_lists_are_the_pipelines_localizers() -> None:
+    """What evaluate and the report expect of each stage (the former hand-written lists)."""
+    listed = stage_localizers("localize", CONF / "localizer")
+    expected = ["amcl", "amcl_global", "amcl_recovery", "hybrid", "scanlocnet", "scanlocnet_track"]
+    assert listed == expected
+    cnn = stage_localizers("localize_cnn", CONF / "localizer")
+    assert cnn == ["cnn_ekf", "cnn_ensemble", "cnn_single"]
+    assert localizer_overrides("localize_cnn", CONF / "localizer")[0] == (
+        "+localizer@localizers.cnn_ekf=cnn_ekf"
+    )
+
+
+def test_a_kind_cannot_be_registered_twice() -> None:
+    with pytest.raises(ValueError, match="'amcl' is registered twice"):
+        register_kind("amcl")(lambda cfg, inputs: Localization(pd.DataFrame(), 0.0, []))
