@@ -1,14 +1,23 @@
 # Two entry points on a fresh machine (each sets up .venv first):
-#   make repro   set up, then run the whole pipeline (`dvc repro`, profile from params.yaml)
-#   make test    set up, then run the test suite (fast: the slow tests are deselected)
-# CI (.ci/run) also runs `make test-slow` (DDP spawn, torch.compile equivalence, ...).
+#   make repro      set up, then run the whole pipeline (`dvc repro`, profile from params.yaml)
+#   make test       set up, then the fast suite: unit and contract tests (minutes on 2 cores);
+#                   run it before every commit
+# Before a release, and in CI (.ci/run):
+#   make test-all   everything: the fast suite, the slow tests (DDP spawn, torch.compile
+#                   equivalence, launcher sweeps, ...) and the end-to-end ones (a smoke
+#                   `dvc repro` in a copy, the README's commands, dvc.lock against the tree)
+#   make test-slow / make test-e2e   one of those two kinds alone
+# The tests run in parallel (pytest-xdist, one worker per core, one file per worker at a time:
+# module fixtures are built once); `make test XDIST=` runs them in one process.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(abspath $(VENV)/bin)
 # The CPU build of torch first: a bare `torch` requirement can pull a CUDA build of several GB.
 TORCH_SPEC ?= torch==2.13.0
+XDIST ?= -n auto --dist loadfile
+PYTEST := PATH="$(BIN):$$PATH" python -m pytest $(XDIST)
 
-.PHONY: setup repro test test-slow lint bench
+.PHONY: setup repro test test-slow test-e2e test-all lint bench
 
 setup: $(VENV)/.ready
 
@@ -22,15 +31,25 @@ $(VENV)/.ready: pyproject.toml
 repro: setup
 	PATH="$(BIN):$$PATH" dvc repro
 
+# The markers' default selection (pyproject.toml addopts): not slow and not e2e.
 test: setup
-	PATH="$(BIN):$$PATH" python -m pytest
+	$(PYTEST)
 
 test-slow: setup
-	PATH="$(BIN):$$PATH" python -m pytest -m slow
+	$(PYTEST) -m slow
 
+test-e2e: setup
+	$(PYTEST) -m e2e
+
+# -m "": no marker filter, so every test runs (one pytest run keeps both cores busy).
+test-all: setup
+	$(PYTEST) -m ""
+
+# ruff, and the import contracts of pyproject.toml [tool.importlinter] (layers, no cycles).
 lint: setup
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/ruff format --check src tests benchmarks
+	$(BIN)/lint-imports --no-cache
 
 bench: setup
 	for b in benchmarks/*.py; do PATH="$(BIN):$$PATH" python $$b || exit 1; done

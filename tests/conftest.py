@@ -1,21 +1,43 @@
-"""Shared fixtures: where the paper's STDR maps live, small worlds built in memory, a tiny scan
+"""Shared fixtures: where the paper's STDR maps live, small worlds built in memory (a walled box,
+the asymmetric room the localizer tests drive in) with UG01-like scans and drives, a tiny scan
 dataset for training tests, and the benchmarks' quick runs."""
 
 from __future__ import annotations
 
+import copy
 import json
+import os
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 import torch
 
+from scanloc.sensor.laser import LaserSpec
+from scanloc.sensor.raycast import CastMap, cast_exact
+from scanloc.trajectory.drive import drive_trajectory
+from scanloc.trajectory.format import Trajectory
+from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid
 from synthetic_scans import write_synthetic_scans
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data" / "stdr_maps"
+SPEC = LaserSpec()  # the URG-04LX the localizer tests simulate
+
+WalledRoom = Callable[[float, float, float], OccupancyGrid]
+Ug01Scans = Callable[[OccupancyGrid, np.ndarray, int], np.ndarray]
+Drive = Callable[..., tuple[Trajectory, np.ndarray]]
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under pytest-xdist every worker trains its tiny models on one torch thread: two workers
+    with a thread per core each would spin in OpenMP barriers against each other."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="session")
@@ -58,3 +80,81 @@ def quick_benchmark() -> Callable[[str], dict]:
         return json.loads(out.stdout.strip().splitlines()[-1])
 
     return run
+
+
+# ---------------------------------------------------------------- small worlds
+
+
+def _walled_room(width: float, height: float, resolution: float) -> OccupancyGrid:
+    cells = np.full((round(height / resolution), round(width / resolution)), FREE, np.int8)
+    cells[[0, -1], :] = OCCUPIED
+    cells[:, [0, -1]] = OCCUPIED
+    return OccupancyGrid(cells, resolution)
+
+
+@pytest.fixture(scope="session")
+def walled_room() -> WalledRoom:
+    """walled_room(width_m, height_m, resolution): a box of free space whose border cells are
+    wall (a fresh grid per call, free to edit)."""
+    return _walled_room
+
+
+def _asymmetric_room(res: float = 0.05) -> OccupancyGrid:
+    cells = np.zeros((round(5.0 / res), round(6.0 / res)), dtype=np.int8)
+    for x0, y0, x1, y1 in [
+        (0, 0, 6, 0.1),
+        (0, 4.9, 6, 5),
+        (0, 0, 0.1, 5),
+        (5.9, 0, 6, 5),
+        (1.5, 1.2, 1.6, 3.4),
+        (1.5, 3.3, 2.8, 3.4),
+        (4.0, 0.1, 4.1, 1.8),
+        (3.8, 3.0, 4.6, 3.6),
+    ]:
+        cells[round(y0 / res) : round(y1 / res), round(x0 / res) : round(x1 / res)] = OCCUPIED
+    cells.setflags(write=False)  # shared by every test of the session
+    return OccupancyGrid(cells, res)
+
+
+@pytest.fixture(scope="session")
+def room() -> OccupancyGrid:
+    """A 6 m x 5 m room at 0.05 m with an L-shaped wall, a wall stub and a block: no symmetry,
+    so a localizer can converge to one pose (read-only: copy `cells` to edit)."""
+    return _asymmetric_room()
+
+
+def _ug01_scans(grid: OccupancyGrid, poses: np.ndarray, seed: int) -> np.ndarray:
+    exact = cast_exact(CastMap.from_grid(grid), poses, SPEC.beam_angles(), SPEC.range_max)
+    hit = np.isfinite(exact)
+    r = np.where(hit, exact, 0.0)
+    sigma = np.where(r < 1.0, 0.03, 0.03 * r)
+    noisy = r + sigma * np.random.default_rng(seed).standard_normal(r.shape)
+    noisy = np.clip(noisy, SPEC.range_min, SPEC.range_max)
+    return np.where(hit, noisy, SPEC.no_return_value).astype(np.float32)
+
+
+@pytest.fixture(scope="session")
+def ug01_scans() -> Ug01Scans:
+    """ug01_scans(grid, poses, seed): URG-04LX scans of `grid` at `poses` (N, 3), exact ranges
+    with UG01-like noise (1σ 30 mm under 1 m, 3 % beyond), no return = 7.0."""
+    return _ug01_scans
+
+
+@pytest.fixture(scope="session")
+def drive(room: OccupancyGrid) -> Drive:
+    """drive(steps, seed=..., scan_seed=..., **drive_trajectory options) -> (trajectory, UG01
+    scans) in `room`. Each distinct drive is simulated once per session; every call gets its
+    own copy, free to edit."""
+    made: dict[tuple[Any, ...], tuple[Trajectory, np.ndarray]] = {}
+
+    def make(
+        steps: int, *, seed: int, scan_seed: int, **options: Any
+    ) -> tuple[Trajectory, np.ndarray]:
+        key = (steps, seed, scan_seed, *sorted(options.items()))
+        if key not in made:
+            traj = drive_trajectory(room, steps, seed=seed, **options)
+            made[key] = traj, _ug01_scans(room, traj.truth, scan_seed)
+        traj, ranges = made[key]
+        return copy.deepcopy(traj), ranges.copy()
+
+    return make

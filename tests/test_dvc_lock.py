@@ -68,6 +68,7 @@ def test_changed_source_dependencies_reads_dvc_status() -> None:
     ]
 
 
+@pytest.mark.e2e  # the committed pipeline's state: checked before a release
 def test_dvc_lock_matches_the_sources_with_caches_written_next_to_them() -> None:
     if not (REPO_ROOT / ".git").exists():
         pytest.skip("not a git checkout")

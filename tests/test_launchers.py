@@ -102,6 +102,7 @@ def test_launcher_config_composes(launcher: str, tmp_path: Path):
         assert Path(cfg.hydra.launcher.submitit_folder).parent.parent == sweep
 
 
+@pytest.mark.slow  # 15-25 s each: the launcher's processes import torch and Lightning
 @pytest.mark.parametrize("launcher", ["local_submitit", "local_parallel"])
 def test_sweep_runs_each_job_into_its_own_folder(launcher: str, tiny_dataset: Path, tmp_path: Path):
     sweep = tmp_path / "sweep"

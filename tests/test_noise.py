@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -75,15 +76,14 @@ def test_laser_spec_config() -> None:
         laser_spec_from_config({"range_min": 6.0})
 
 
-def room() -> OccupancyGrid:
+@pytest.fixture(scope="module")
+def box(walled_room: Callable[..., OccupancyGrid]) -> OccupancyGrid:
     """1 m x 1 m of free space at 0.02 m inside a one-cell wall."""
-    cells = np.zeros((52, 52), np.int8)
-    cells[0], cells[-1], cells[:, 0], cells[:, -1] = OCCUPIED, OCCUPIED, OCCUPIED, OCCUPIED
-    return OccupancyGrid(cells, 0.02)
+    return walled_room(1.04, 1.04, 0.02)
 
 
-def test_simulated_readings_respect_range_limits_and_fill() -> None:
-    grid = room()
+def test_simulated_readings_respect_range_limits_and_fill(box: OccupancyGrid) -> None:
+    grid = box
     spec = LaserSpec(range_min=0.3, range_max=0.6, no_return_value=7.0)
     poses = np.array([[0.3, 0.3, 0.0], [0.52, 0.52, 1.0]])
     exact = cast_exact(CastMap.from_grid(grid), poses, spec.beam_angles(), spec.range_max)
@@ -98,8 +98,8 @@ def test_simulated_readings_respect_range_limits_and_fill() -> None:
     assert (noisy[kept] >= np.float32(0.3)).all() and (noisy[kept] <= np.float32(0.6)).all()
 
 
-def test_simulation_is_deterministic_for_a_seed() -> None:
-    grid, spec = room(), LaserSpec()
+def test_simulation_is_deterministic_for_a_seed(box: OccupancyGrid) -> None:
+    grid, spec = box, LaserSpec()
     poses = np.array([[0.3, 0.4, 0.5], [0.7, 0.6, -2.0]])
     a = simulate_scans(grid, spec, poses, UG01, rng_seed=11)
     b = ScanSimulator(grid, spec, UG01).simulate(poses, np.random.SeedSequence(11))

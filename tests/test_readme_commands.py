@@ -16,7 +16,7 @@ import pytest
 
 from test_pipeline_e2e import REPO_ROOT, copy_project, dvc
 
-pytestmark = pytest.mark.slow
+pytestmark = pytest.mark.e2e  # copies the repository, runs dvc and the sweeps
 
 
 def readme_section(title: str) -> str:

@@ -4,6 +4,7 @@ brute force, the on-the-fly scans, training on maps of any size, and bad input."
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import ScanSimulator, laser_spec_from_config
 from scanloc.world.build import build_map
 from scanloc.world.map_server import save_map
-from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid
+from scanloc.world.occupancy_grid import OCCUPIED, OccupancyGrid
 
 SENSOR = {
     "num_beams": 61,
@@ -46,20 +47,15 @@ SMALL_NET = {
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-def room(width: float = 4.0, height: float = 3.0, res: float = 0.05) -> OccupancyGrid:
-    """A walled room with an L-shaped wall and a block: no symmetry."""
-    cells = np.full((round(height / res), round(width / res)), FREE, dtype=np.int8)
-    cells[[0, -1], :] = OCCUPIED
-    cells[:, [0, -1]] = OCCUPIED
+@pytest.fixture(scope="module")
+def grid(walled_room: Callable[..., OccupancyGrid]) -> OccupancyGrid:
+    """A 4 m x 3 m walled room at 0.05 m with an L-shaped wall and a block: no symmetry."""
+    room = walled_room(4.0, 3.0, 0.05)
+    cells, res = room.cells, room.resolution
     cells[round(0.8 / res) : round(2.0 / res), round(1.2 / res) : round(1.3 / res)] = OCCUPIED
     cells[round(1.9 / res) : round(2.0 / res), round(1.2 / res) : round(2.4 / res)] = OCCUPIED
     cells[round(0.3 / res) : round(0.7 / res), round(3.0 / res) : round(3.4 / res)] = OCCUPIED
-    return OccupancyGrid(cells, res)
-
-
-@pytest.fixture(scope="module")
-def grid() -> OccupancyGrid:
-    return room()
+    return room
 
 
 @pytest.fixture(scope="module")
@@ -88,12 +84,14 @@ def test_pose_grid_follows_the_free_space(grid: OccupancyGrid, pose_grid: PoseGr
 
 @settings(max_examples=200, deadline=None)
 @given(st.floats(0.3, 3.7), st.floats(0.3, 2.7), st.floats(-10.0, 10.0))
-def test_encode_then_decode_gives_the_pose_back(x: float, y: float, theta: float) -> None:
-    grid = PoseGrid.from_map(room(), 0.5, 12, 0.0)
-    enc = grid.encode(np.array([[x, y, theta]]))
+def test_encode_then_decode_gives_the_pose_back(
+    grid: OccupancyGrid, x: float, y: float, theta: float
+) -> None:
+    cells = PoseGrid.from_map(grid, 0.5, 12, 0.0)
+    enc = cells.encode(np.array([[x, y, theta]]))
     assert enc["cell"][0] >= 0  # every position in the room lies in a cell
     assert np.all(np.abs(enc["offset"]) <= 0.5) and abs(enc["bin_offset"][0]) <= 0.5
-    back = grid.decode(enc["cell"], enc["offset"], enc["bin"], enc["bin_offset"])[0]
+    back = cells.decode(enc["cell"], enc["offset"], enc["bin"], enc["bin_offset"])[0]
     assert back[:2] == pytest.approx([x, y], abs=1e-9)
     assert abs(math.remainder(back[2] - theta, 2 * math.pi)) < 1e-9
     assert -math.pi < back[2] <= math.pi
