@@ -162,9 +162,11 @@ def test_smoke_metrics_hold_every_contract_metric(smoke_repo: Path) -> None:
         for path, content in workspace["data"].items():
             metrics[path] = content["data"]
     for row in TABLE1_ROWS:
-        train = metrics[f"reports/metrics/train_{row}.json"]
-        assert {"val_mae", "epoch_s"} <= set(train)
-        assert metrics[f"reports/timing/train_{row}.json"]["wall_s"] > 0
+        assert "val_mae" in metrics[f"reports/metrics/train_{row}.json"]
+        # Machine-dependent figures beside the wall time, shown but never hashed.
+        timing = metrics[f"reports/timing/train_{row}.json"]
+        assert timing["wall_s"] > 0 and timing["epoch_s"] > 0, row
+        assert "epoch_s" not in metrics[f"reports/metrics/train_{row}.json"], row
     # The wall times are shown (dvc.yaml's top-level metrics) but never hashed into dvc.lock.
     assert metrics["reports/localize_timing/sparse_obstacles_drive.json"]["amcl"]["setup_s"] >= 0
     lock = yaml.safe_load((smoke_repo / "dvc.lock").read_text())

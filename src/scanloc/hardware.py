@@ -5,8 +5,32 @@ from __future__ import annotations
 
 import os
 import platform
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
+
+# Figures of a training run that depend on the machine, not on the parameters: wall seconds
+# per epoch and in all, and the device. Stages write them to their timing file (shown by `dvc
+# metrics show`, never hashed into dvc.lock), so that every hashed metrics file is the same
+# bytes on every machine of the same arithmetic.
+MACHINE_KEYS = ("epoch_s", "train_s", "device")
+
+
+def split_machine_figures(metrics: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(the metrics without MACHINE_KEYS, the MACHINE_KEYS found), nested mappings (e.g. an
+    ensemble's per-member metrics) split alike."""
+    kept: dict[str, Any] = {}
+    machine: dict[str, Any] = {}
+    for key, value in metrics.items():
+        if isinstance(value, Mapping):
+            kept[key], inner = split_machine_figures(value)
+            if inner:
+                machine[key] = inner
+        elif key in MACHINE_KEYS:
+            machine[key] = value
+        else:
+            kept[key] = value
+    return kept, machine
 
 
 def cpu_model() -> str:

@@ -38,7 +38,7 @@ import scanloc.data.datamodule as datamodule_py
 import scanloc.data.rasterize as rasterize_py
 from scanloc.data.datamodule import ScanDataModule
 from scanloc.data.scan_dataset import ScanDataset, load_scan_dataset
-from scanloc.hardware import training_device
+from scanloc.hardware import MACHINE_KEYS, training_device
 from scanloc.io import atomic_path, write_json
 from scanloc.models.model_files import (
     PathLike,
@@ -73,7 +73,6 @@ __all__ = [
 ]
 
 # Figures that measure the machine rather than the run: kept out of the model folder.
-MACHINE_KEYS = ("epoch_s", "device")
 
 
 def write_history(path: PathLike, history: Sequence[Mapping[str, float]]) -> None:

@@ -18,7 +18,7 @@ import pandas as pd
 
 from scanloc.evaluate.metrics import check_table
 from scanloc.evaluate.table2 import ordered_methods
-from scanloc.hardware import device_sentence
+from scanloc.hardware import MACHINE_KEYS, device_sentence
 from scanloc.io import read_json
 from scanloc.report.paper import PAPER_DRIVE, ROWS, TRANSFER
 from scanloc.sensor.laser import LaserSpec
@@ -96,6 +96,12 @@ def metrics_path(name: str) -> Path:
     return METRICS_DIR / f"train_{name}.json"
 
 
+def timing_path(name: str) -> Path:
+    """The stage's timing file, which holds the run's machine-dependent figures (epoch_s,
+    device: scanloc.hardware.MACHINE_KEYS) beside its wall time."""
+    return TIMING_DIR / metrics_path(name).name
+
+
 def load_run(root: Path, name: str) -> TrainingRun | None:
     """A run's history and config (models/<name>/) and final metrics (`metrics_path`), or None
     if its model folder does not exist."""
@@ -108,6 +114,10 @@ def load_run(root: Path, name: str) -> TrainingRun | None:
     if missing:
         raise ValueError(f"{history_path}: missing column(s) {missing}")
     metrics = read_json(required(root / metrics_path(name), "final training metrics"))
+    timing = root / timing_path(name)
+    if timing.is_file():  # absent when the models came from elsewhere: epoch_s is then NaN
+        figures = read_json(timing)
+        metrics = {**metrics, **{k: figures[k] for k in MACHINE_KEYS if k in figures}}
     config = read_json(required(folder / "config.json", "training parameters as run"))
     return TrainingRun(history, metrics, config)
 

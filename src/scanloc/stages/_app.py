@@ -99,13 +99,16 @@ def is_rank_zero() -> bool:
 
 
 @contextmanager
-def timed_stage(name: str, folder: str | Path) -> Iterator[None]:
+def timed_stage(name: str, folder: str | Path) -> Iterator[dict[str, Any]]:
     """Record the stage's wall time in <folder>/<name>.json (the config's timing_dir; under
-    DVC reports/timing/, a cache-less metric); rank 0 only."""
+    DVC reports/timing/, listed in dvc.yaml's top-level metrics: shown, never hashed); rank 0
+    only. The stage may add its other machine-dependent figures (epoch_s, device: see
+    scanloc.hardware.split_machine_figures) to the yielded dict."""
     start = time.perf_counter()
-    yield
+    machine: dict[str, Any] = {}
+    yield machine
     if is_rank_zero():
         write_json(
             Path(folder) / f"{name}.json",
-            {"stage": name, "wall_s": round(time.perf_counter() - start, 3)},
+            {"stage": name, "wall_s": round(time.perf_counter() - start, 3), **machine},
         )

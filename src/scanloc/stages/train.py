@@ -12,6 +12,7 @@ from typing import Any
 
 from omegaconf import DictConfig
 
+from scanloc.hardware import split_machine_figures
 from scanloc.io import write_json
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 
@@ -35,8 +36,11 @@ def run_config(cfg: DictConfig) -> dict[str, Any]:
     }
 
 
-def train(cfg: DictConfig, out_dir: Path, metrics_path: Path) -> dict[str, Any]:
-    """Train what `cfg.experiment` describes into out_dir and return its metrics."""
+def train(
+    cfg: DictConfig, out_dir: Path, metrics_path: Path, machine: dict[str, Any]
+) -> dict[str, Any]:
+    """Train what `cfg.experiment` describes into out_dir and return its metrics; its
+    machine-dependent figures go into `machine` (the stage's timing file), not metrics_path."""
     # Imported here so that `--cfg job` and a sweep's parent process stay fast.
     from scanloc.models.stacked_ensemble import fit_stacked
     from scanloc.models.training import fit
@@ -69,15 +73,17 @@ def train(cfg: DictConfig, out_dir: Path, metrics_path: Path) -> dict[str, Any]:
             **common,
         )
     if metrics:  # empty on the non-zero ranks of a multi-process (DDP) run: rank 0 writes
+        kept, figures = split_machine_figures(metrics)
+        machine.update(figures)
         write_json(out_dir / "config.json", run_config(cfg))
-        write_json(metrics_path, metrics)
+        write_json(metrics_path, kept)
     return metrics
 
 
 @stage_main("train")
 def main(cfg: DictConfig) -> float:
-    with timed_stage(f"train_{cfg.experiment.name}", cfg.timing_dir):
-        metrics = train(cfg, Path(cfg.out_dir), Path(cfg.metrics_path))
+    with timed_stage(f"train_{cfg.experiment.name}", cfg.timing_dir) as machine:
+        metrics = train(cfg, Path(cfg.out_dir), Path(cfg.metrics_path), machine)
     # The value a Hydra sweeper would minimise.
     return float(metrics.get("val_mae", float("nan")))
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
+from scanloc.hardware import split_machine_figures
 from scanloc.io import write_json
 from scanloc.models.training import fit
 from scanloc.stages._app import stage_main, timed_stage, to_dict
@@ -21,7 +22,7 @@ def main(cfg: DictConfig) -> None:
         raise ValueError(f"conf/transfer.yaml: init must be one of {INITS}, got {cfg.init!r}")
     run = cfg.transfer
     out_dir, metrics_path = Path(cfg.out_dir), Path(cfg.metrics_path)
-    with timed_stage(f"transfer_{cfg.init}", cfg.timing_dir):
+    with timed_stage(f"transfer_{cfg.init}", cfg.timing_dir) as machine:
         metrics = fit(
             model_cfg=to_dict(cfg.model.net),
             dataset_dir=Path(cfg.dataset_dir),
@@ -55,7 +56,9 @@ def main(cfg: DictConfig) -> None:
                 "seed": int(run.seed),
             },
         )
-        write_json(metrics_path, metrics)
+        kept, figures = split_machine_figures(metrics)
+        machine.update(figures)
+        write_json(metrics_path, kept)
 
 
 if __name__ == "__main__":
