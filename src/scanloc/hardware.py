@@ -22,12 +22,12 @@ def split_machine_figures(metrics: Mapping[str, Any]) -> tuple[dict[str, Any], d
     kept: dict[str, Any] = {}
     machine: dict[str, Any] = {}
     for key, value in metrics.items():
-        if isinstance(value, Mapping):
+        if key in MACHINE_KEYS:  # whole, also when it is a mapping (the device)
+            machine[key] = value
+        elif isinstance(value, Mapping):
             kept[key], inner = split_machine_figures(value)
             if inner:
                 machine[key] = inner
-        elif key in MACHINE_KEYS:
-            machine[key] = value
         else:
             kept[key] = value
     return kept, machine
