@@ -118,11 +118,41 @@ def lock_outs(repo: Path, prefixes: tuple[str, ...]) -> dict[str, str]:
     }
 
 
+# A user's new localizer: one YAML file in conf/localizer and nothing else (a new kind would
+# add one registered class: tests/test_localize_stage.py).
+DUMMY_LOCALIZER = "amcl_dummy"
+DUMMY_NOTE = "a user's own amcl variant, added as one YAML file"
+DUMMY_YAML = f"""defaults:
+  - amcl
+  - _self_
+name: {DUMMY_LOCALIZER}
+kind: amcl
+group: tracking
+stages: [localize]
+global_table: true
+note: "{DUMMY_NOTE}"
+laser_max_beams: 12
+"""
+
+
 @pytest.fixture(scope="module")
 def smoke_repo(tmp_path_factory: pytest.TempPathFactory) -> Path:
     repo = copy_project(tmp_path_factory.mktemp("smoke") / "repo", "smoke", EXTRA_MAPS)
+    (repo / "conf" / "localizer" / f"{DUMMY_LOCALIZER}.yaml").write_text(DUMMY_YAML)
     dvc(repo, "repro")
     return repo
+
+
+def test_a_localizer_added_as_one_yaml_reaches_the_metrics_and_the_report(
+    smoke_repo: Path,
+) -> None:
+    localization = json.loads((smoke_repo / "reports/metrics/localization.json").read_text())
+    for name in (*PAPER_MAPS, *EXTRA_MAPS):
+        for run in ("drive", "kidnap"):
+            assert TABLE2_KEYS <= set(localization[f"{name}_{run}"][DUMMY_LOCALIZER]), (name, run)
+    markdown = (smoke_repo / "reports/report.md").read_text()
+    assert DUMMY_NOTE in markdown
+    assert markdown.count(f"| {DUMMY_LOCALIZER} |") >= len(PAPER_MAPS) + len(EXTRA_MAPS)
 
 
 def test_smoke_repro_is_up_to_date(smoke_repo: Path) -> None:
@@ -200,7 +230,7 @@ def test_smoke_metrics_hold_every_contract_metric(smoke_repo: Path) -> None:
         per_run = localization[f"intel_{run}"]
         for method in ("amcl", "amcl_global", "hybrid", "scanlocnet"):
             assert {"pos_err_rmse_m", "steps_to_converge"} <= set(per_run[method]), (run, method)
-        assert per_run["amcl"]["n_steps"] == 100  # the smoke profile's first 100 scans
+        assert per_run["amcl"]["n_steps"] == 50  # the middle half of smoke's first 100 scans
         assert "top5_recall" in per_run["scanlocnet"]
 
 
@@ -208,7 +238,7 @@ def test_smoke_metrics_hold_every_contract_metric(smoke_repo: Path) -> None:
 def test_smoke_repro_runs_the_real_log(smoke_repo: Path) -> None:
     assert (smoke_repo / "data/maps/intel/map.yaml").is_file()
     meta = json.loads((smoke_repo / "data/trajectories/intel_real/meta.json").read_text())
-    assert meta["num_steps"] == 100 and meta["num_beams"] == 180
+    assert meta["num_steps"] == 50 and meta["num_beams"] == 180  # the evaluated half
     html = (smoke_repo / "reports/report.html").read_text()
     assert 'id="real-data"' in html and "intel" in html and "sim-to-real" in html
 
