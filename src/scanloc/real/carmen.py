@@ -341,12 +341,16 @@ def read_carmen_log(path: str | os.PathLike[str]) -> CarmenLog:
     """
     path = Path(path)
     reader = _Reader(path)
+    lineno = 0
     try:
         with _open_text(path) as text:
             for lineno, line in enumerate(text, start=1):
                 reader.feed(lineno, line)
     except (OSError, EOFError) as exc:
-        raise CarmenFormatError(f"{path}: cannot read log ({exc})") from exc
+        raise CarmenFormatError(
+            f"{path}:{lineno + 1}: cannot read line {lineno + 1} (expected a readable plain or "
+            f"gzipped CARMEN log after line {lineno}): {exc}"
+        ) from exc
     front, rear = reader.stream("front"), reader.stream("rear")
     odometry = Odometry(
         times=np.asarray(reader.odom_times, dtype=np.float64),

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from scanloc.pose import wrap_angle
+from scanloc.pose import compose, inverse, wrap_angle
 from scanloc.real.carmen import CarmenLog, LaserStream
 
 
@@ -73,25 +73,50 @@ def _compose(a: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.array([a[0] + c * u[0] - s * u[1], a[1] + s * u[0] + c * u[1], a[2] + u[2]])
 
 
-def scan_odometry(log: CarmenLog, stream: str = "front") -> np.ndarray:
-    """Wheel odometry at each scan of a corrected log, float64 (N, 3), θ in (-π, π].
+def base_poses(laser_poses: np.ndarray, mount: np.ndarray) -> np.ndarray:
+    """Robot base poses (N, 3) of laser poses: laser ⊕ mount⁻¹, θ wrapped; `mount` is the
+    laser's pose (x, y, θ) in the base frame."""
+    unmount = inverse(np.asarray(mount, dtype=np.float64))
+    out = np.array([compose(p, unmount) for p in np.asarray(laser_poses)]).reshape(-1, 3)
+    out[:, 2] = wrap_angle(out[:, 2])
+    return out
 
-    A corrected log's ODOM lines restart from each scan's corrected robot pose (module doc),
-    so the last ODOM line before scan k+1 is scan k's pose moved by the wheels' motion between
-    the scans. Chaining those increments from the first scan's robot pose gives the odometry
-    with its drift, in the frame `drive_trajectory` uses (odometry[0] == truth[0]). Scans with
-    no ODOM line since the previous one add no motion.
+
+def scan_odometry(
+    log: CarmenLog, stream: str = "front", mount: np.ndarray | None = None
+) -> np.ndarray:
+    """Wheel odometry of the robot base at each scan of a corrected log, float64 (N, 3), θ in
+    (-π, π].
+
+    A corrected log's ODOM lines restart from each scan's corrected pose (module doc), so the
+    last ODOM line before scan k+1 is scan k's pose moved by the wheels' motion between the
+    scans: a base increment, in a frame parallel to the base's (the anchor is the laser pose,
+    whose heading is the base's plus the mount's). Chaining those increments in the robot frame
+    from the first scan's base pose (laser pose ⊕ mount⁻¹) gives the base's odometry with its
+    drift, in the frame `drive_trajectory` uses (odometry[0] == truth[0]). Scans with no ODOM
+    line since the previous one add no motion.
     """
     laser = _laser(log, stream)
+    mount = np.zeros(3) if mount is None else np.asarray(mount, dtype=np.float64)
     real = np.flatnonzero(~log.odometry.echo)
     before = np.searchsorted(real, laser.odom_index, side="left")  # real ODOM lines before
     anchors = laser.odom_poses
     out = np.empty((laser.num_scans, 3))
-    out[0] = anchors[0]
+    out[0] = base_poses(anchors[:1], mount)[0]
     for k in range(1, laser.num_scans):
         step = np.zeros(3)
         if before[k] > before[k - 1]:
             step = _relative(anchors[k - 1], log.odometry.poses[real[before[k] - 1]])
+            # the anchor frame is the laser's, turned by the mount's θ from the base's
+            step = _rotate(step, mount[2])
         out[k] = _compose(out[k - 1], step)
     out[:, 2] = wrap_angle(out[:, 2])
     return out
+
+
+def _rotate(u: np.ndarray, angle: float) -> np.ndarray:
+    """An increment's translation turned by `angle` (from the laser's to the base's axes)."""
+    if angle == 0.0:
+        return u
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c * u[0] - s * u[1], s * u[0] + c * u[1], u[2]])

@@ -1,40 +1,126 @@
-"""`real` stage (beyond the paper): a real CARMEN laser log as a map, a real run and its
-simulated twin (see conf/real.yaml); the localize and evaluate stages then treat both runs
-like any other trajectory."""
+"""`real` stage (beyond the paper): a real CARMEN laser log as a map built from its mapping
+part, runs on its evaluation part (real scans, their simulated twin, a kidnap run) and the
+mapping part as a tuning run (see conf/real.yaml); the localize and evaluate stages then treat
+every run like any other trajectory.
+
+Frames: each run's truth and odometry are the robot base's; the laser sits at `laser_mount`
+(meta.json {x, y, yaw}: the laser's pose in the base frame, as the bag reader writes it;
+scanloc.real.log_sensor) and its pose is base ⊕ mount. The sensor is read from the log (or
+the override the `real_logs` entry names) and written with the noise to
+data/maps/<log>/{sensor,noise}.yaml, which later stages load with `~sensor ~noise
++sensor_file=data/maps/<log>/sensor.yaml +noise_file=data/maps/<log>/noise.yaml`
+(scanloc.stages.group_files).
+"""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
+import yaml
 from omegaconf import DictConfig
 
-from scanloc.real.carmen import read_carmen_log
-from scanloc.real.carmen_laser import clean_ranges, laser_spec
-from scanloc.real.carmen_odometry import scan_odometry, wrap_logged_headings
+from scanloc.io import write_json
+from scanloc.real.carmen import CarmenLog, read_carmen_log
+from scanloc.real.carmen_laser import clean_ranges
+from scanloc.real.carmen_odometry import base_poses, scan_odometry, wrap_logged_headings
+from scanloc.real.laser_odometry import drift, increments, laser_odometry
 from scanloc.real.log_mapping import build_map_from_log, save_log_map
-from scanloc.sensor.laser import LaserSpec
+from scanloc.real.log_sensor import (
+    log_stream,
+    no_return_marker,
+    resolve_mount,
+    sensor_from_log,
+)
+from scanloc.real.split import (
+    Split,
+    coverage,
+    kidnap_segments,
+    segment_run,
+    segments_of,
+    split_log,
+)
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
-from scanloc.stages._app import stage_main, timed_stage, to_dict
+from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
 from scanloc.trajectory.format import Trajectory, save_trajectory
 
 
-def check_sensor(log_path: Path, from_log: LaserSpec, configured: LaserSpec) -> None:
-    """The configured sensor must be the log's: same beams and angles (the rate and range
-    limits are the config's choice)."""
-    same = (
-        from_log.num_beams == configured.num_beams
-        and abs(from_log.angle_min - configured.angle_min) < 1e-9
-        and abs(from_log.angle_max - configured.angle_max) < 1e-9
-    )
-    if not same:
-        raise ValueError(
-            f"{log_path}: the laser has {from_log.num_beams} beams from {from_log.angle_min:.6f} "
-            f"to {from_log.angle_max:.6f} rad, the sensor config {configured.num_beams} from "
-            f"{configured.angle_min:.6f} to {configured.angle_max:.6f}: choose the log's "
-            "sensor (conf/sensor/carmen_<log>.yaml)"
-        )
+def log_entry(cfg: DictConfig) -> dict:
+    """The log's `real_logs` entry of `params_file` ({} when there is none: a run by hand)."""
+    path = Path(cfg.params_file)
+    params = yaml.safe_load(path.read_text()) if path.is_file() else {}
+    return dict(((params or {}).get("real_logs") or {}).get(cfg.log_name) or {})
+
+
+def chosen_noise(cfg: DictConfig) -> dict:
+    """The simulated scans' noise: conf/noise/<entry's noise> when the entry names one."""
+    name = log_entry(cfg).get("noise")
+    if name is None:
+        return to_dict(cfg.noise)
+    return yaml.safe_load((Path(conf_dir()) / "noise" / f"{name}.yaml").read_text())
+
+
+def chosen_sensor(cfg: DictConfig, from_log: dict) -> dict:
+    """The log's sensor, or the override the `real_logs` entry (or the command line) names,
+    which must have the log's beams and angles (its rate and range limits are its choice)."""
+    name = cfg.sensor_override or log_entry(cfg).get("sensor")
+    if name is None:
+        return from_log
+    path = Path(conf_dir()) / "sensor" / f"{name}.yaml"
+    override = yaml.safe_load(path.read_text())
+    for key in ("num_beams", "angle_min", "angle_max"):
+        if abs(float(override[key]) - float(from_log[key])) > 1e-9:
+            raise ValueError(
+                f"{path}: field '{key}': expected the log's {from_log[key]} ({cfg.log}), "
+                f"got {override[key]}"
+            )
+    return override
+
+
+def write_log_conf(map_dir: Path, sensor: dict, noise: dict) -> None:
+    """data/maps/<log>/{sensor,noise}.yaml: what later stages load (module doc)."""
+    map_dir.mkdir(parents=True, exist_ok=True)
+    for group, values in (("sensor", sensor), ("noise", noise)):
+        (map_dir / f"{group}.yaml").write_text(yaml.safe_dump(values))
+
+
+def mapping_mount(
+    cfg: DictConfig, log: CarmenLog, laser_truth: np.ndarray, mapping: np.ndarray
+) -> tuple[np.ndarray, dict]:
+    """The laser's mount, checked or estimated on the mapping part's own steps (none across
+    its cut, none of the evaluation part)."""
+    count = len(laser_truth)
+    within = np.isin(np.arange(count - 1), mapping) & np.isin(np.arange(1, count), mapping)
+    flat = scan_odometry(log, str(cfg.stream))[:count]  # as if the mount were 0
+    steps = increments(laser_truth)[within], increments(flat)[within]
+    return resolve_mount(log, str(cfg.stream), *steps)
+
+
+def split_metrics(
+    split: Split, count: int, covered: dict, real: Trajectory, fallbacks: int
+) -> dict:
+    """reports/metrics/real_<log>.json (also in every run's meta.json)."""
+    out = {
+        "split": {
+            "mode": split.mode,
+            "optimistic": split.optimistic,
+            "map_scans": len(split.mapping),
+            "evaluation_scans": len(split.evaluation),
+            "map_share": round(len(split.mapping) / count, 4),
+            "evaluation_share": round(len(split.evaluation) / count, 4),
+        },
+        "coverage": {k: v for k, v in covered.items() if k != "uncovered_steps"},
+        "odometry": {
+            "wheel": drift(real.odometry, real.truth),
+            "laser": drift(real.laser_odometry, real.truth)
+            | {"fallback_pairs_whole_log": fallbacks},
+        },
+    }
+    if split.optimistic:
+        out["split"]["note"] = "optimistic: the map holds every evaluated scan"
+    return out
 
 
 @stage_main("real")
@@ -42,53 +128,99 @@ def main(cfg: DictConfig) -> None:
     log_path = Path(cfg.log)
     with timed_stage(f"real_{cfg.log_name}", cfg.timing_dir):
         log = read_carmen_log(log_path)
-        stream = {"front": log.front, "rear": log.rear}[str(cfg.stream)]
-        if stream is None:
-            raise ValueError(f"{log_path}: field 'stream': no {cfg.stream} laser in this log")
-        spec = laser_spec_from_config(to_dict(cfg.sensor))
-        check_sensor(log_path, laser_spec(stream, spec.range_max), spec)
+        stream = log_stream(log, str(cfg.stream))
+        from_log = sensor_from_log(stream, to_dict(cfg.sensor_defaults))
+        sensor, noise = chosen_sensor(cfg, from_log), chosen_noise(cfg)
+        spec = laser_spec_from_config(sensor)
         count = (
             stream.num_scans if cfg.max_scans is None else min(int(cfg.max_scans), stream.num_scans)
         )
-        truth = np.ascontiguousarray(stream.laser_poses[:count], dtype=np.float64)
-        truth[:, 2] = wrap_logged_headings(truth[:, 2])
+        laser_truth = np.ascontiguousarray(stream.laser_poses[:count], dtype=np.float64)
+        laser_truth[:, 2] = wrap_logged_headings(laser_truth[:, 2])
         ranges = clean_ranges(stream.ranges[:count], spec.range_max, spec.no_return_value)
+        angles = stream.beam_angles()
+        split = split_log(
+            count,
+            str(cfg.split.mode),
+            float(cfg.split.map_share),
+            tuple(cfg.split.window),
+            cfg.split.max_evaluation_scans,
+        )
+        m, e = split.mapping, split.evaluation
+        mount, mount_info = mapping_mount(cfg, log, laser_truth, m)
+        truth = base_poses(laser_truth, mount)
+        wheel = scan_odometry(log, str(cfg.stream), mount)[:count]
+        laser, fallbacks = laser_odometry(ranges, angles, spec.range_max, wheel, mount)
         # Mapping: a beam with no return says nothing reliable (glass, open doors, the sensor's
-        # limit), and clearing free space along all 50 m of it would open the map to its border.
+        # limit), and clearing free space along all of it would open the map to its border.
         hits = np.where(ranges < spec.range_max, ranges, np.float32(np.nan))
         grid = build_map_from_log(
-            truth,
-            hits,
-            stream.beam_angles(),
-            spec.range_max,
-            resolution=float(cfg.mapping.resolution),
-            margin=float(cfg.mapping.margin),
-        )
+            laser_truth[m], hits[m], angles, spec.range_max,
+            resolution=float(cfg.mapping.resolution), margin=float(cfg.mapping.margin),
+        )  # fmt: skip
         save_log_map(grid, Path(cfg.map_dir) / "map.yaml", Path(cfg.map_dir) / "preview.png")
-        traj = Trajectory(
-            times=stream.times[:count] - stream.times[0],
-            truth=truth,
-            odometry=scan_odometry(log, str(cfg.stream))[:count],
-        )
+        write_log_conf(Path(cfg.map_dir), sensor, noise)
+        segments = {
+            "real": segments_of(e),
+            "tune": segments_of(m),
+            "kidnap": kidnap_segments(e, int(cfg.kidnap_cuts)),
+        }
+        steps = increments(wheel), increments(laser)
+        runs = {
+            name: segment_run(seg, stream.times[:count], truth, *steps)
+            for name, seg in segments.items()
+        }
+        covered = coverage(grid, laser_truth[e], ranges[e], angles, spec.range_max)
+        uncovered = e[covered["uncovered_steps"]]  # as log scan indices
+        metrics = split_metrics(split, count, covered, runs["real"][0], fallbacks)
+        write_json(Path(cfg.metrics_file), metrics)
         meta = {
             "map": cfg.log_name,
             "log": log_path.name,
             "stream": str(cfg.stream),
             "scans": count,
-            "sensor": to_dict(cfg.sensor),
+            "sensor": sensor,
+            "sensor_source": "read from the log (scanloc.real.log_sensor)"
+            if sensor is from_log
+            else "conf/sensor override named by the real_logs entry",
+            "no_return_marker_m": no_return_marker(stream.ranges),
+            # as the bag reader / writer (scanloc.bags) keep it: base_link → laser
+            "laser_mount": dict(zip(("x", "y", "yaw"), mount.round(6).tolist(), strict=True)),
+            "laser_mount_frame": "laser pose in the robot base frame; laser = base ⊕ mount",
+            "laser_mount_info": mount_info,
+            "truth_frame": "robot base (laser pose ⊕ mount⁻¹)",
+            **metrics,
         }
-        save_trajectory(traj, cfg.real_dir, ranges, meta | {"name": f"{cfg.log_name}_real"}, grid)
+        for name, (traj, index) in runs.items():
+            run_meta = meta | {
+                "name": f"{cfg.log_name}_{name}",
+                "log_scans": [int(index[0]), int(index[-1])],
+                "uncovered_steps": np.flatnonzero(np.isin(index, uncovered)).tolist(),
+            }
+            if name == "tune":
+                run_meta |= {"part": "mapping (for choosing settings; never scored)"}
+                del run_meta["uncovered_steps"]  # in the map by construction
+            save_trajectory(traj, cfg[f"{name}_dir"], ranges[index], run_meta, grid)
+        real, index = runs["real"]
         simulated = simulate_scans(
-            grid,
-            spec,
-            truth,
-            noise_from_config(to_dict(cfg.noise)),
-            rng_seed=int(cfg.seed),
-            mode=cfg.sensor.mode,
-            unknown_blocks=cfg.sensor.unknown_blocks,
+            grid, spec, laser_truth[index], noise_from_config(noise),
+            rng_seed=int(cfg.seed), mode=sensor["mode"], unknown_blocks=sensor["unknown_blocks"],
+        )  # fmt: skip
+        sim_laser, sim_fallbacks = laser_odometry(
+            simulated, angles, spec.range_max, real.odometry, mount
         )
-        sim_meta = meta | {"name": f"{cfg.log_name}_sim", "noise": to_dict(cfg.noise)}
-        save_trajectory(traj, cfg.sim_dir, simulated, sim_meta, grid)
+        sim = dataclasses.replace(real, laser_odometry=sim_laser)
+        sim_odometry = metrics["odometry"] | {
+            "laser": drift(sim_laser, real.truth) | {"fallback_pairs": sim_fallbacks}
+        }
+        sim_meta = meta | {
+            "name": f"{cfg.log_name}_sim",
+            "noise": noise,
+            "odometry": sim_odometry,
+            "log_scans": [int(index[0]), int(index[-1])],
+            "uncovered_steps": np.flatnonzero(np.isin(index, uncovered)).tolist(),
+        }
+        save_trajectory(sim, cfg.sim_dir, simulated, sim_meta, grid)
 
 
 if __name__ == "__main__":

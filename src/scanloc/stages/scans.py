@@ -7,11 +7,13 @@ from omegaconf import DictConfig
 from scanloc.data.scan_dataset import generate_scan_dataset
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages._app import stage_main, timed_stage, to_dict
+from scanloc.stages.group_files import load_group_files
 from scanloc.world.map_server import load_map
 
 
 @stage_main("scans")
 def main(cfg: DictConfig) -> None:
+    load_group_files(cfg)
     dataset = cfg.dataset
     with timed_stage(f"scans_{dataset.name}", cfg.timing_dir):
         generate_scan_dataset(

@@ -17,6 +17,10 @@ from scanloc.io import atomic_path
 from scanloc.world.occupancy_grid import OccupancyGrid
 
 FILES = ("truth.npy", "odometry.npy", "times.npy", "ranges.npy", "meta.json", "route.png")
+# Optional: laser odometry (T, 3) float64, the robot base's pose by scan-to-scan registration
+# (scanloc.real.laser_odometry) in the same frame as odometry.npy (it starts at the true
+# start pose and integrates no motion across a kidnap). Written only when the run has it.
+OPTIONAL_FILES = ("laser_odometry.npy",)
 
 
 @dataclass(frozen=True)
@@ -26,6 +30,8 @@ class Trajectory:
     `odometry` is the wheel-odometry pose in the odometry frame, which starts at the true start
     pose. `waypoints` (K, 2) are the route's waypoints in visiting order. `kidnap_steps` are the
     steps at which the robot was carried elsewhere (truth[k] is the first pose after it).
+    `laser_odometry` (T, 3), when present, is the laser (scan-matched) odometry of the same
+    base, in the same frame as `odometry` (OPTIONAL_FILES).
     """
 
     times: np.ndarray
@@ -33,6 +39,7 @@ class Trajectory:
     odometry: np.ndarray
     waypoints: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     kidnap_steps: tuple[int, ...] = ()
+    laser_odometry: np.ndarray | None = None
 
 
 def _npy_bytes(array: np.ndarray) -> bytes:
@@ -119,6 +126,11 @@ def save_trajectory(
         "meta.json": (json.dumps(full_meta, indent=2, sort_keys=True) + "\n").encode(),
         "route.png": _route_png(traj, grid),
     }
+    if traj.laser_odometry is not None:
+        laser = np.asarray(traj.laser_odometry, dtype=np.float64)
+        if laser.shape != (steps, 3):
+            raise ValueError(f"laser_odometry must have shape ({steps}, 3), got {laser.shape}")
+        payload["laser_odometry.npy"] = _npy_bytes(laser)
     out.mkdir(parents=True, exist_ok=True)
     for name, data in payload.items():
         with atomic_path(out / name) as tmp:
@@ -126,7 +138,8 @@ def save_trajectory(
 
 
 def load_trajectory(directory: str | Path) -> tuple[Trajectory, np.ndarray]:
-    """Read what `save_trajectory` wrote: (Trajectory, ranges float32 (T, B))."""
+    """Read what `save_trajectory` wrote: (Trajectory, ranges float32 (T, B)); the laser
+    odometry too where the run has it."""
     d = Path(directory)
     arrays = {}
     for name in ("truth", "odometry", "times", "ranges"):
@@ -146,6 +159,14 @@ def load_trajectory(directory: str | Path) -> tuple[Trajectory, np.ndarray]:
         raise ValueError(
             f"{d / 'ranges.npy'}: expected shape ({steps[0]}, B), got {arrays['ranges'].shape}"
         )
+    laser_odometry = None
+    if (d / "laser_odometry.npy").is_file():
+        laser_odometry = np.load(d / "laser_odometry.npy", allow_pickle=False)
+        if laser_odometry.shape != (steps[0], 3):
+            raise ValueError(
+                f"{d / 'laser_odometry.npy'}: expected shape ({steps[0]}, 3), "
+                f"got {laser_odometry.shape}"
+            )
     waypoints = np.zeros((0, 2))
     kidnaps: tuple[int, ...] = ()
     meta_path = d / "meta.json"
@@ -160,5 +181,6 @@ def load_trajectory(directory: str | Path) -> tuple[Trajectory, np.ndarray]:
         odometry=arrays["odometry"],
         waypoints=waypoints,
         kidnap_steps=kidnaps,
+        laser_odometry=laser_odometry,
     )
     return traj, arrays["ranges"]
