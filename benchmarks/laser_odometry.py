@@ -19,8 +19,8 @@ from pathlib import Path
 from scanloc.real.carmen import read_carmen_log
 from scanloc.real.carmen_laser import clean_ranges
 from scanloc.real.carmen_odometry import base_poses, scan_odometry, wrap_logged_headings
-from scanloc.real.laser_odometry import LaserOdometryConfig, drift, increments, laser_odometry
 from scanloc.real.log_sensor import resolve_mount
+from scanloc.trajectory.laser_odometry import LaserOdometryConfig, drift, increments, laser_odometry
 
 LOGS = {
     "intel": "../shared/data/carmen/intel-corrected.log.gz",

@@ -19,7 +19,6 @@ from omegaconf import OmegaConf
 from scanloc.pose import compose, inverse
 from scanloc.real.carmen import CarmenFormatError, read_carmen_log
 from scanloc.real.carmen_odometry import scan_odometry
-from scanloc.real.laser_odometry import drift, increments, laser_odometry
 from scanloc.real.log_mapping import build_map_from_log
 from scanloc.real.log_sensor import (
     estimate_mount_offset,
@@ -33,6 +32,7 @@ from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
 from scanloc.stages.real import chosen_sensor
 from scanloc.trajectory.format import load_trajectory
+from scanloc.trajectory.laser_odometry import drift, increments, laser_odometry
 from scanloc.world.map_server import load_map
 
 

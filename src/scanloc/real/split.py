@@ -26,8 +26,8 @@ import numpy as np
 from scipy import ndimage
 
 from scanloc.pose import compose
-from scanloc.real.laser_odometry import chain
 from scanloc.trajectory.format import Trajectory
+from scanloc.trajectory.laser_odometry import chain
 from scanloc.world.occupancy_grid import OccupancyGrid
 
 SPLIT_MODES = ("window", "halves", "full")

@@ -25,7 +25,6 @@ from scanloc.io import write_json
 from scanloc.real.carmen import CarmenLog, read_carmen_log
 from scanloc.real.carmen_laser import clean_ranges
 from scanloc.real.carmen_odometry import base_poses, scan_odometry, wrap_logged_headings
-from scanloc.real.laser_odometry import drift, increments, laser_odometry
 from scanloc.real.log_mapping import build_map_from_log, save_log_map
 from scanloc.real.log_sensor import (
     log_stream,
@@ -45,6 +44,7 @@ from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
 from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
 from scanloc.trajectory.format import Trajectory, save_trajectory
+from scanloc.trajectory.laser_odometry import drift, increments, laser_odometry
 
 
 def log_entry(cfg: DictConfig) -> dict:

@@ -18,7 +18,7 @@ from scanloc.world.occupancy_grid import OccupancyGrid
 
 FILES = ("truth.npy", "odometry.npy", "times.npy", "ranges.npy", "meta.json", "route.png")
 # Optional: laser odometry (T, 3) float64, the robot base's pose by scan-to-scan registration
-# (scanloc.real.laser_odometry) in the same frame as odometry.npy (it starts at the true
+# (scanloc.trajectory.laser_odometry) in the same frame as odometry.npy (it starts at the true
 # start pose and integrates no motion across a kidnap). Written only when the run has it.
 OPTIONAL_FILES = ("laser_odometry.npy",)
 
