@@ -28,7 +28,8 @@ from scanloc.world.map_server import save_map
 from scanloc.world.occupancy_grid import OccupancyGrid
 
 REPO = Path(__file__).resolve().parents[1]
-CALIBRATION = ("calib_within_1sigma", "calib_within_2sigma")  # need a covariance
+# need a covariance
+CALIBRATION = ("calib_within_1sigma", "calib_within_2sigma", "false_convergences")
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +51,7 @@ def amcl_run(tmp_path_factory: pytest.TempPathFactory, room: OccupancyGrid) -> P
 
 
 def reference_metrics(root: Path) -> dict[str, float]:
-    return evaluate_trajectory(root / "run", [root / "localize"], [])["amcl"]
+    return evaluate_trajectory(root / "run", [root / "localize"])["amcl"]
 
 
 def test_amcl_csv_reproduces_the_evaluate_stage(amcl_run: Path) -> None:

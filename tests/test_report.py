@@ -22,7 +22,8 @@ import pytest
 import yaml
 
 from scanloc.estimates import TABLE_COLUMNS
-from scanloc.evaluate.table2 import evaluate_runs
+from scanloc.evaluate.seeds import global_localization
+from scanloc.evaluate.table2 import evaluate_runs, nested_json
 from scanloc.report.build import build_report
 from scanloc.report.sections.registry import SECTIONS
 from scanloc.stages.report import git_commit
@@ -148,14 +149,16 @@ def make_artifacts(root: Path) -> Path:
             _estimates(truth, noise, cov, members, rng).to_csv(loc / f"{method}.csv", index=False)
         timings = {m: {"time_per_scan_s": 0.001 * k} for m, k in (("amcl", 500), ("cnn_single", 1))}
         _write_json(root / "reports/localize_timing" / f"{run}.json", timings)
-    evaluate_runs(
+    metrics = evaluate_runs(
         list(runs),
         root / "data/trajectories",
         [root / "reports/localize", root / "reports/localize_cnn"],
-        root / "reports/localize_timing",
         root / "reports/metrics/localization.json",
         root / "reports/table2",
     )
+    seeds = {"sparse_obstacles": ["sparse_obstacles_kidnap"]}
+    figures = nested_json(global_localization(metrics, seeds, converge_within=20))
+    (root / "reports/metrics/global_localization.json").write_text(figures)
     learned = {"cells": 222, "train_s": 301.5, "samples_seen": 375000, "precision": "32-true"}
     learned |= {"val_pos_err_median_m": 0.113, "val_heading_err_median_deg": 0.63}
     learned |= {"val_frac_gross_over_1m": 0.02, "val_top1_recall": 0.97, "val_top5_recall": 0.996}
@@ -399,6 +402,40 @@ def test_notes_and_the_global_table_come_from_the_localizer_catalog(tmp_path: Pa
         page, "localization"
     )
     assert "<td>amcl</td>" not in section_html(page, "global-localization")
+
+
+def test_the_global_table_shows_rates_with_intervals_over_seeds(tmp_path: Path) -> None:
+    root = make_artifacts(tmp_path)
+    build(root, CONTEXT)
+    section = section_html(
+        (root / "reports/report.html").read_text(encoding="utf-8"), "global-localization"
+    )
+    # amcl tracks from the true first pose: converged at step 0 on its one seed, and the
+    # fabricated estimates follow the truth through the kidnap (truth.copy() never jumps)
+    assert (
+        "<td>sparse_obstacles</td><td>amcl</td><td>1</td><td>1 / 1 = 100 % [21–100 %]</td>"
+        in section
+    )
+    assert "Nothing in this table was tuned on the runs it scores." in section
+    assert "Converged in time: within 20 steps of the start." in section
+    assert "<td>simple_rooms</td>" not in section.split("Seed 0 alone", 1)[0]  # no figures
+    (root / "reports/metrics/global_localization.json").unlink()
+    build(root, CONTEXT)
+    page = (root / "reports/report.html").read_text(encoding="utf-8")
+    assert "Over seeds: not available (reports/metrics/global_localization.json)." in page
+
+
+def test_times_per_scan_come_from_the_unhashed_timing_files(tmp_path: Path) -> None:
+    root = make_artifacts(tmp_path)
+    doc = json.loads((root / "reports/metrics/localization.json").read_text())
+    assert "time_per_scan_s" not in doc["sparse_obstacles_drive"]["amcl"]
+    build(root, CONTEXT)
+    table2 = section_html((root / "reports/report.html").read_text(encoding="utf-8"), "table-2")
+    assert "time per scan [ms]" in table2 and "<td>500</td>" in table2  # amcl: 0.5 s
+    (root / "reports/localize_timing/sparse_obstacles_drive.json").unlink()
+    build(root, CONTEXT)
+    table2 = section_html((root / "reports/report.html").read_text(encoding="utf-8"), "table-2")
+    assert "time per scan [ms]" in table2 and "<td>500</td>" not in table2
 
 
 # ---------------------------------------------------------------- provenance: '+dirty'

@@ -89,7 +89,7 @@ def score_estimates(
     with atomic_path(out_csv) as tmp:
         table.to_csv(tmp, index=False, float_format="%.9g")
     written = read_estimates(Path(out_csv))  # scored as the evaluate stage reads it
-    metrics = evaluate_all(traj.truth, {name: written}, {}, {name: str(out_csv)}, traj.kidnap_steps)
+    metrics = evaluate_all(traj.truth, {name: written}, {name: str(out_csv)}, traj.kidnap_steps)
     with atomic_path(metrics_path) as tmp:
         tmp.write_text(metrics_json(metrics), encoding="utf-8")
     return metrics[name]

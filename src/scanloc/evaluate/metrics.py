@@ -24,7 +24,20 @@ that never converges in a stretch gets the stretch's length, a censored count ("
 these N steps"), so that every metric stays a number that DVC can show and compare; the flags
 `converged` (0/1) and `recovered` (of `kidnaps`) say which counts are censored. The tracking
 errors are taken over the converged stretches only (from convergence or recovery to the next
-kidnap); `frac_lost` is the share of all steps more than 1 m off.
+kidnap); `frac_lost` is the share of all steps more than 1 m off. `kidnaps_recovered_frac` is
+the share of kidnaps recovered within `RECOVERED_WITHIN_STEPS` (20) steps (recovery_steps ≤ 20).
+
+Staying right (`staying_right_metrics`): a converged filter can lose the pose again, or
+converge on the wrong pose. `relosses` counts re-losses: within each stretch between kidnaps,
+once converged (as above), a run of `RELOSS_STEPS` (5) or more consecutive steps that are not
+good (error ≥ 0.5 m or ≥ 10°, or no estimate) is one re-loss; the filter counts as converged
+again only after another 20 good steps in a row, so a long loss is one re-loss, not many.
+`false_convergences` counts convergences on a wrong mode: maximal stretches of at least 20
+consecutive steps in which the filter is confident by its own measure (the larger standard
+deviation of its 2×2 position covariance ≤ `CONFIDENT_STD_M`, 0.5 m: its belief fits inside
+the convergence radius) while its estimate is not good. A stretch that begins at a kidnap
+step is a belief carried over by the kidnap, scored by the recovery metrics, and not counted.
+A localizer without a position covariance has no measure of its own: no false_convergences.
 """
 
 from __future__ import annotations
@@ -47,6 +60,9 @@ GROSS_FAILURE_M = 1.0
 CONVERGED_DISTANCE_M = 0.5
 CONVERGED_ANGLE_DEG = 10.0
 CONVERGED_STEPS = 20
+RECOVERED_WITHIN_STEPS = 20
+RELOSS_STEPS = 5
+CONFIDENT_STD_M = 0.5
 
 
 def read_estimates(path: Path) -> pd.DataFrame:
@@ -184,7 +200,7 @@ def convergence_metrics(
     tracking = np.zeros(len(truth), dtype=bool)
     out: dict[str, float] = {}
     recoveries = []
-    recovered = 0
+    recovered = quick = 0
     for k, (start, stop) in enumerate(itertools.pairwise(bounds)):
         s = first_converged(good, start, stop)
         if s >= 0:
@@ -196,16 +212,89 @@ def convergence_metrics(
         else:
             recoveries.append(steps)
             recovered += int(s >= 0)
+            quick += int(0 <= s - start <= RECOVERED_WITHIN_STEPS)
             out[f"recovery_steps_{k}"] = steps
     if recoveries:
         out["recovery_steps_max"] = max(recoveries)
         out["recovery_steps_mean"] = float(np.mean(recoveries))
         out["recovered"] = recovered
         out["kidnaps"] = len(recoveries)
+        out["kidnaps_recovered_frac"] = quick / len(recoveries)
     track = tracking & np.isfinite(pos)
     out["tracking_pos_err_mean_m"] = float(pos[track].mean()) if track.any() else np.nan
     out["tracking_pos_err_median_m"] = float(np.median(pos[track])) if track.any() else np.nan
     out["tracking_heading_err_mean_deg"] = float(heading[track].mean()) if track.any() else np.nan
     out["tracking_share"] = float(track.mean())
     out["frac_lost"] = float(lost.mean())
+    return out
+
+
+def _good_steps(truth: np.ndarray, table: pd.DataFrame) -> np.ndarray:
+    """Per step: the estimate is within 0.5 m and 10° of the truth (no estimate: not good)."""
+    truth = np.asarray(truth, dtype=np.float64)
+    est = table_poses(table)
+    pos = np.hypot(est[:, 0] - truth[:, 0], est[:, 1] - truth[:, 1])
+    heading = np.degrees(np.abs(wrap_angle(est[:, 2] - truth[:, 2])))
+    with np.errstate(invalid="ignore"):
+        return (pos < CONVERGED_DISTANCE_M) & (heading < CONVERGED_ANGLE_DEG)
+
+
+def confident_steps(table: pd.DataFrame) -> np.ndarray | None:
+    """Per step: the filter's own position covariance has its larger standard deviation
+    ≤ CONFIDENT_STD_M; None for a table without covariance columns or any finite covariance."""
+    if not all(c in table.columns for c in POSITION_COV_COLUMNS):
+        return None
+    sxx, sxy, syy = (table[c].to_numpy(dtype=np.float64) for c in POSITION_COV_COLUMNS)
+    if not np.isfinite(sxx + sxy + syy).any():
+        return None
+    # Larger eigenvalue of [[sxx, sxy], [sxy, syy]].
+    largest = 0.5 * (sxx + syy) + np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
+    with np.errstate(invalid="ignore"):
+        return largest <= CONFIDENT_STD_M**2  # NaN: not confident
+
+
+def count_relosses(good: np.ndarray, start: int, stop: int) -> int:
+    """Re-losses in good[start:stop] (see the module docstring): after CONVERGED_STEPS good
+    steps in a row, RELOSS_STEPS bad ones in a row are one re-loss and end the convergence."""
+    relosses, converged, good_run, bad_run = 0, False, 0, 0
+    for step in range(start, stop):
+        if good[step]:
+            good_run, bad_run = good_run + 1, 0
+            converged = converged or good_run >= CONVERGED_STEPS
+        else:
+            good_run, bad_run = 0, bad_run + 1
+            if converged and bad_run >= RELOSS_STEPS:
+                relosses, converged = relosses + 1, False
+    return relosses
+
+
+def count_false_convergences(
+    good: np.ndarray, confident: np.ndarray, kidnap_steps: tuple[int, ...] = ()
+) -> int:
+    """Maximal stretches of ≥ CONVERGED_STEPS steps confident but not good, not beginning at a
+    kidnap step (see the module docstring)."""
+    wrong = confident & ~good
+    count, run_start = 0, -1
+    for step in range(len(wrong) + 1):
+        if step < len(wrong) and wrong[step]:
+            run_start = step if run_start < 0 else run_start
+            continue
+        if run_start >= 0 and step - run_start >= CONVERGED_STEPS and run_start not in kidnap_steps:
+            count += 1
+        run_start = -1
+    return count
+
+
+def staying_right_metrics(
+    truth: np.ndarray, table: pd.DataFrame, kidnap_steps: tuple[int, ...] = ()
+) -> dict[str, float]:
+    """`relosses` and (for a table with a position covariance) `false_convergences`."""
+    good = _good_steps(truth, table)
+    bounds = [0, *kidnap_steps, len(good)]
+    out: dict[str, float] = {
+        "relosses": sum(count_relosses(good, a, b) for a, b in itertools.pairwise(bounds))
+    }
+    confident = confident_steps(table)
+    if confident is not None:
+        out["false_convergences"] = count_false_convergences(good, confident, kidnap_steps)
     return out

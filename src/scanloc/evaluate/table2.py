@@ -2,9 +2,11 @@
 
 `reports/metrics/localization_<trajectory>.json` is `{method: {metric: value}}` with sorted keys
 and values rounded to 6 significant digits (NaN written as null), so that identical estimates
-give identical bytes; only the timing figures vary from run to run. Each method gets Table 2's
-and the modern metrics, the global-localization and kidnap metrics, and, for a localizer that
-writes ranked hypotheses (`<method>_hypotheses.npz`), the top-1/5/20 recall.
+give identical bytes. Each method gets Table 2's and the modern metrics, the global-localization,
+kidnap and staying-right metrics, and, for a localizer that writes ranked hypotheses
+(`<method>_hypotheses.npz`), the top-1/5/20 recall. Wall-clock figures (time per scan, setup)
+measure the machine, not the estimates: they stay in the localize stages' unhashed
+reports/localize_timing/ files, which the report reads beside these metrics.
 """
 
 from __future__ import annotations
@@ -13,16 +15,21 @@ import json
 import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from scanloc.evaluate.metrics import convergence_metrics, localization_metrics, read_estimates
+from scanloc.evaluate.metrics import (
+    convergence_metrics,
+    localization_metrics,
+    read_estimates,
+    staying_right_metrics,
+)
 from scanloc.io import atomic_path, read_json
 from scanloc.pose import recall_within
 
 METHOD_ORDER = ("amcl", "cnn_single", "cnn_ensemble")
-TIMING_SUFFIX = "_timing.json"
 HYPOTHESES_SUFFIX = "_hypotheses.npz"
 RECALL_K = (1, 5, 20)
 
@@ -36,7 +43,6 @@ def ordered_methods(names: list[str] | Mapping[str, object]) -> list[str]:
 def evaluate_all(
     truth: np.ndarray,
     tables: Mapping[str, pd.DataFrame],
-    timings: Mapping[str, Mapping[str, float]],
     sources: Mapping[str, str] | None = None,
     kidnap_steps: tuple[int, ...] = (),
     hypotheses: Mapping[str, np.ndarray] | None = None,
@@ -46,12 +52,9 @@ def evaluate_all(
     sources, hypotheses = sources or {}, hypotheses or {}
     out = {}
     for name in ordered_methods(tables):
-        timing = timings.get(name, {})
-        metrics = localization_metrics(
-            truth, tables[name], timing.get("time_per_scan_s"), sources.get(name, name)
-        )
+        metrics = localization_metrics(truth, tables[name], source=sources.get(name, name))
         metrics |= convergence_metrics(truth, tables[name], kidnap_steps)
-        metrics |= {k: v for k, v in timing.items() if k in ("setup_s", "time_per_scan_median_s")}
+        metrics |= staying_right_metrics(truth, tables[name], kidnap_steps)
         if name in hypotheses:
             for k in RECALL_K:
                 hit = recall_within(hypotheses[name][:, :k], truth)
@@ -74,6 +77,17 @@ def metrics_json(metrics: Mapping[str, Mapping[str, float]]) -> str:
     """Stable JSON text of {method: {metric: value}}."""
     rounded = {m: {k: round_sig(v) for k, v in vals.items()} for m, vals in metrics.items()}
     return json.dumps(rounded, sort_keys=True, indent=2, allow_nan=False) + "\n"
+
+
+def _rounded(doc: Any) -> Any:
+    if isinstance(doc, Mapping):
+        return {str(k): _rounded(v) for k, v in doc.items()}
+    return round_sig(doc)
+
+
+def nested_json(doc: Mapping[str, Any]) -> str:
+    """Stable JSON text of nested mappings of numbers (rounded as `metrics_json`)."""
+    return json.dumps(_rounded(doc), sort_keys=True, indent=2, allow_nan=False) + "\n"
 
 
 def _fixed(digits: int) -> Callable[[float | None], str]:
@@ -110,7 +124,13 @@ MODERN_COLUMNS: tuple[tuple[str, str, Callable[[float | None], str]], ...] = (
     ("frac_gross_over_1m", "> 1 m (gross)", _percent),
     ("calib_within_1sigma", "in 1σ ellipse (39.3 %)", _percent),
     ("calib_within_2sigma", "in 2σ ellipse (86.5 %)", _percent),
-    ("time_per_scan_s", "time per scan [ms]", _millis),
+)
+# Measured on the machine that ran the localize stage (reports/localize_timing/, unhashed):
+# the report adds it to the modern metrics; the hashed Markdown tables leave it out.
+TIME_COLUMN: tuple[str, str, Callable[[float | None], str]] = (
+    "time_per_scan_s",
+    "time per scan [ms]",
+    _millis,
 )
 
 
@@ -120,6 +140,9 @@ GLOBAL_COLUMNS: tuple[tuple[str, str, Callable[[float | None], str]], ...] = (
     ("recovery_steps_max", "recovery steps (max)", _fixed(0)),
     ("recovery_steps_mean", "recovery steps (mean)", _fixed(1)),
     ("recovered", "kidnaps recovered", _fixed(0)),
+    ("kidnaps_recovered_frac", "recovered ≤ 20 steps", _percent),
+    ("relosses", "re-losses", _fixed(0)),
+    ("false_convergences", "false convergences", _fixed(0)),
     ("tracking_pos_err_mean_m", "tracking pos. error mean [m]", _fixed(3)),
     ("tracking_pos_err_median_m", "median [m]", _fixed(3)),
     ("tracking_heading_err_mean_deg", "heading mean [°]", _fixed(2)),
@@ -131,7 +154,10 @@ GLOBAL_NOTE = (
     "converge count from the start, recovery steps from each kidnap; a localizer that does not "
     "converge within a stretch (the run, or up to the next kidnap) gets the stretch's length, "
     "with converged = 0 or fewer kidnaps recovered; tracking errors are over the converged "
-    "stretches only; "
+    "stretches only; recovered ≤ 20 steps: share of kidnaps recovered within 20 steps; "
+    "re-losses: a converged filter off (≥ 0.5 m or ≥ 10°) for 5 or more steps in a row; "
+    "false convergences: 20 or more steps in a row confident by the filter's own covariance "
+    "(larger std ≤ 0.5 m) on a pose ≥ 0.5 m or ≥ 10° from the truth (– without a covariance); "
     "top-5 recall: the truth within 0.5 m and 10° of one of a learned localizer's 5 best "
     "hypotheses."
 )
@@ -225,7 +251,7 @@ def load_truth(trajectory_dir: Path) -> tuple[np.ndarray, tuple[int, ...]]:
 
 
 def evaluate_trajectory(
-    trajectory_dir: Path, localize_dirs: list[Path], timing_files: list[Path]
+    trajectory_dir: Path, localize_dirs: list[Path]
 ) -> dict[str, dict[str, float]]:
     """The metrics of every `<method>.csv` in the localize folders against the trajectory."""
     truth, kidnaps = load_truth(trajectory_dir)
@@ -240,22 +266,18 @@ def evaluate_trajectory(
             f"{', '.join(map(str, localize_dirs))}: no <method>.csv estimate tables found"
         )
     tables = {name: read_estimates(path) for name, path in paths.items()}
-    timings: dict[str, dict[str, float]] = {}
-    for timing_file in timing_files:
-        timings |= read_timings(timing_file)
     hypotheses: dict[str, np.ndarray] = {}
     for folder in localize_dirs:
         if folder.is_dir():
             hypotheses |= read_hypotheses(folder, len(truth))
     sources = {name: str(path) for name, path in paths.items()}
-    return evaluate_all(truth, tables, timings, sources, kidnaps, hypotheses)
+    return evaluate_all(truth, tables, sources, kidnaps, hypotheses)
 
 
 def evaluate_runs(
     trajectories: list[str],
     trajectory_root: Path,
     localize_roots: list[Path],
-    timing_dir: Path,
     out_json: Path,
     table2_dir: Path,
 ) -> dict[str, dict[str, dict[str, float]]]:
@@ -264,13 +286,12 @@ def evaluate_runs(
     metrics = {}
     for name in trajectories:
         metrics[name] = evaluate_trajectory(
-            trajectory_root / name,
-            [root / name for root in localize_roots],
-            [Path(timing_dir) / f"{name}.json", Path(timing_dir) / f"{name}_cnn.json"],
+            trajectory_root / name, [root / name for root in localize_roots]
         )
-    rounded = {name: json.loads(metrics_json(m)) for name, m in metrics.items()}
+    text = nested_json(metrics)
     with atomic_path(out_json) as tmp:
-        tmp.write_text(json.dumps(rounded, sort_keys=True, indent=2) + "\n", encoding="utf-8")
+        tmp.write_text(text, encoding="utf-8")
+    rounded = json.loads(text)
     for name, doc in rounded.items():
         steps = len(load_truth(trajectory_root / name)[0])
         with atomic_path(Path(table2_dir) / f"{name}.md") as tmp:

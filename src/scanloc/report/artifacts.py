@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from scanloc.evaluate.metrics import check_table
-from scanloc.evaluate.table2 import ordered_methods
+from scanloc.evaluate.table2 import ordered_methods, read_timings
 from scanloc.hardware import MACHINE_KEYS, device_sentence
 from scanloc.io import read_json
 from scanloc.report.paper import PAPER_DRIVE, ROWS, TRANSFER
@@ -31,6 +31,10 @@ MAPS_DIR = Path("data/maps")
 SCANS_DIR = Path("data/scans")
 METRICS_DIR = Path("reports/metrics")
 METRICS_JSON = METRICS_DIR / "localization.json"
+GLOBAL_METRICS_JSON = METRICS_DIR / "global_localization.json"
+LOCALIZE_TIMING_DIR = Path("reports/localize_timing")
+# The wall-clock figures per localizer that the report shows beside the evaluated metrics.
+TIMING_FIGURES = ("time_per_scan_s", "time_per_scan_median_s", "setup_s")
 LOCALIZE_DIRS = (Path("reports/localize"), Path("reports/localize_cnn"))
 TIMING_DIR = Path("reports/timing")
 REPORT_TIMING = "report"  # this stage's own timing file, from its previous run: not counted
@@ -218,6 +222,37 @@ def stage_timings(root: Path) -> list[tuple[str, Any]]:
     return timings
 
 
+def localize_timings(root: Path, run: str) -> dict[str, dict[str, float]]:
+    """{localizer: wall-clock figures} of trajectory `run`, from the localize stages' timing
+    files (reports/localize_timing/<run>.json, <run>_cnn.json): they measure the machine, so
+    they live outside the evaluate stage's hashed metrics; {} if there are none."""
+    timings: dict[str, dict[str, float]] = {}
+    for suffix in ("", "_cnn"):
+        timings |= read_timings(root / LOCALIZE_TIMING_DIR / f"{run}{suffix}.json")
+    return timings
+
+
+def with_timings(
+    root: Path, localization: Mapping[str, Mapping[str, Mapping[str, Any]]]
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """The evaluated metrics of every trajectory with each localizer's wall-clock figures
+    (`TIMING_FIGURES`, where measured) merged in."""
+    merged = {}
+    for run, methods in localization.items():
+        timings = localize_timings(root, run)
+        merged[run] = {
+            name: metrics | {k: v for k, v in timings.get(name, {}).items() if k in TIMING_FIGURES}
+            for name, metrics in methods.items()
+        }
+    return merged
+
+
+def load_global_figures(root: Path) -> Mapping[str, Mapping[str, Mapping[str, Any]]] | None:
+    """{map: {localizer: figures over the evaluation seeds}} from evaluate, or None."""
+    path = root / GLOBAL_METRICS_JSON
+    return read_json(path) if path.is_file() else None
+
+
 def total_stage_seconds(root: Path) -> float:
     """The sum of the stages' wall times in reports/timing/ (the report's own excluded)."""
     return sum(float(wall_s or 0.0) for _, wall_s in stage_timings(root))
@@ -226,7 +261,9 @@ def total_stage_seconds(root: Path) -> float:
 @dataclass
 class Artifacts:
     """What several sections and the claims read, loaded once: the paper drive's truth and
-    estimate tables, the localization metrics of every trajectory, the training runs."""
+    estimate tables, the localization metrics of every trajectory (with the localize stages'
+    wall-clock figures merged in), the training runs and the figures over seeds (None if
+    evaluate wrote none)."""
 
     root: Path
     truth: np.ndarray
@@ -234,6 +271,7 @@ class Artifacts:
     runs: Mapping[str, TrainingRun]
     tables: Mapping[str, pd.DataFrame]
     _grids: dict[str, OccupancyGrid] = field(default_factory=dict, repr=False)
+    global_figures: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None
 
     @classmethod
     def load(cls, root: Path) -> Artifacts:
@@ -243,7 +281,15 @@ class Artifacts:
         if PAPER_DRIVE not in localization:
             raise ValueError(f"{path}: field '{PAPER_DRIVE}': missing (paper Table 2)")
         runs = load_runs(root)
-        return cls(root, truth, localization, runs, load_tables(root, PAPER_DRIVE, len(truth)))
+        tables = load_tables(root, PAPER_DRIVE, len(truth))
+        return cls(
+            root,
+            truth,
+            with_timings(root, localization),
+            runs,
+            tables,
+            global_figures=load_global_figures(root),
+        )
 
     @property
     def paper_metrics(self) -> Mapping[str, Mapping[str, Any]]:

@@ -1,6 +1,7 @@
 """`evaluate` stage: Table 2 (paper §4.4), modern and global-localization metrics for every
 localizer on every trajectory of the pipeline's maps (params.yaml `maps`) and real logs
-(`real_logs`)."""
+(`real_logs`); then, per map and log, the figures over its evaluation seeds (success rates
+with Wilson intervals, steps to converge and to recover, re-losses, false convergences)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ from pathlib import Path
 import yaml
 from omegaconf import DictConfig
 
-from scanloc.evaluate.table2 import evaluate_runs
+from scanloc.evaluate.seeds import global_localization
+from scanloc.evaluate.table2 import evaluate_runs, nested_json
+from scanloc.io import atomic_path
 from scanloc.stages._app import stage_main, timed_stage
 
 
@@ -32,16 +35,21 @@ def pipeline_real_logs(params_path: Path = Path("params.yaml")) -> list[str]:
 @stage_main("evaluate")
 def main(cfg: DictConfig) -> None:
     with timed_stage("evaluate", cfg.timing_dir):
-        names = [f"{m}_{run}" for m in pipeline_maps() for run in cfg.runs]
-        names += [f"{log}_{run}" for log in pipeline_real_logs() for run in cfg.real_runs]
-        evaluate_runs(
+        maps, logs = pipeline_maps(), pipeline_real_logs()
+        names = [f"{m}_{run}" for m in maps for run in cfg.runs]
+        names += [f"{log}_{run}" for log in logs for run in cfg.real_runs]
+        metrics = evaluate_runs(
             names,
             Path(cfg.trajectory_root),
             [Path(p) for p in cfg.localize_roots],
-            Path(cfg.localize_timing_dir),
             Path(cfg.metrics_path),
             Path(cfg.table2_dir),
         )
+        sets = {m: [f"{m}_{run}" for run in cfg.seed_runs] for m in maps}
+        sets |= {log: [f"{log}_{run}" for run in cfg.real_seed_runs] for log in logs}
+        figures = global_localization(metrics, sets, int(cfg.converge_within_steps))
+        with atomic_path(Path(cfg.global_metrics_path)) as tmp:
+            tmp.write_text(nested_json(figures), encoding="utf-8")
 
 
 if __name__ == "__main__":

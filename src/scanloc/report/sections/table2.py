@@ -3,7 +3,13 @@ modern metrics beside it."""
 
 from __future__ import annotations
 
-from scanloc.evaluate.table2 import MODERN_COLUMNS, TABLE2_COLUMNS, TABLE2_NOTE, format_rows
+from scanloc.evaluate.table2 import (
+    MODERN_COLUMNS,
+    TABLE2_COLUMNS,
+    TABLE2_NOTE,
+    TIME_COLUMN,
+    format_rows,
+)
 from scanloc.report.context import ReportContext, SectionSpec
 from scanloc.report.render.document import Para, Section, Table
 
@@ -22,10 +28,11 @@ def build(ctx: ReportContext, spec: SectionSpec) -> list[Section]:
             "within 0.1 / 0.25 / 0.5 m and gross failures beyond 1 m; calibration = share of "
             "steps whose true position lies inside the 1σ / 2σ ellipse of the estimate's "
             "position covariance (a calibrated Gaussian: 39.3 % / 86.5 %; the single CNN has "
-            "no covariance). Time per scan is measured on the machine that ran the stage."
+            "no covariance). Time per scan is measured on the machine that ran the localize stage "
+            "(reports/localize_timing/, outside the hashed metrics)."
         )
     )
-    section.blocks.append(Table(*format_rows(metrics, MODERN_COLUMNS)))
+    section.blocks.append(Table(*format_rows(metrics, (*MODERN_COLUMNS, TIME_COLUMN))))
     return [section]
 
 

@@ -1,0 +1,148 @@
+"""Global-localization figures over trajectory seeds: success rates with Wilson intervals and
+the distribution of steps to converge and to recover, per map and localizer.
+
+One map's evaluation set is its kidnap runs over several trajectory seeds (conf/seeds.yaml).
+Each run gives one global-localization start (the stretch before the first kidnap) and one
+recovery per kidnap. Following the seeds contract (docs/design.md ★): a figure over seeds
+keeps the per-run metric name for its mean, with `<name>_ci95_low`, `<name>_ci95_high` and
+`n_seeds` beside it, and the per-seed values under `seeds/<i>/<name>`.
+
+- `convergence_success`: share of runs whose localizer converged (metrics.py) within
+  `converge_within` steps of the start; Wilson 95 % interval over the n_seeds runs.
+  `converged`: share that converged at all before the first kidnap (else steps_to_converge is
+  censored); `recovered`: kidnaps recovered at all per run (mean, `_total`).
+- `kidnaps_recovered_frac`: share of all kidnaps of the set recovered within 20 steps
+  (metrics.RECOVERED_WITHIN_STEPS), pooled over the runs (`n_kidnaps` trials); Wilson interval.
+- `steps_to_converge` (mean, `_median`, `_max` = worst seed) and `recovery_steps` (`_mean`,
+  `_median`, `_max` over all kidnaps): censored counts as in metrics.py (a localizer that never
+  converges in a stretch gets the stretch's length), so they are lower bounds where censored.
+- `relosses`, `false_convergences`: mean per run with a Student-t 95 % interval, and `_total`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile
+
+
+def wilson_interval(successes: int, trials: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % by default): unlike the normal
+    approximation it stays inside [0, 1] and is not empty at 0 or n successes."""
+    if trials <= 0 or not 0 <= successes <= trials:
+        raise ValueError(
+            f"wilson_interval: expected 0 <= successes <= trials, trials > 0; "
+            f"got {successes} of {trials}"
+        )
+    p = successes / trials
+    denom = 1.0 + z * z / trials
+    centre = (p + z * z / (2 * trials)) / denom
+    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denom
+    # At 0 (or n) successes the bound is 0 (or 1) exactly; rounding would leave ~1e-17.
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == trials else min(1.0, centre + half)
+    return low, high
+
+
+def mean_interval(values: Sequence[float]) -> tuple[float, float, float]:
+    """Mean and Student-t 95 % interval of per-seed counts, clipped at 0 (a count is never
+    negative); one value: the interval is that value, there being no spread to estimate."""
+    arr = np.asarray(values, dtype=np.float64)
+    mean = float(arr.mean())
+    if arr.size < 2:
+        return mean, mean, mean
+    half = float(stats.t.ppf(0.975, arr.size - 1) * arr.std(ddof=1) / math.sqrt(arr.size))
+    return mean, max(0.0, mean - half), mean + half
+
+
+def _rate(name: str, successes: int, trials: int) -> dict[str, float]:
+    low, high = wilson_interval(successes, trials)
+    return {name: successes / trials, f"{name}_ci95_low": low, f"{name}_ci95_high": high}
+
+
+def _mean(name: str, values: Sequence[float]) -> dict[str, float]:
+    mean, low, high = mean_interval(values)
+    total = float(np.sum(values))
+    return {name: mean, f"{name}_ci95_low": low, f"{name}_ci95_high": high, f"{name}_total": total}
+
+
+def recovery_counts(metrics: Mapping[str, Any]) -> list[float]:
+    """The per-kidnap recovery steps (`recovery_steps_<k>`, k = 1, 2, ...) of one run."""
+    return [float(metrics[f"recovery_steps_{k}"]) for k in range(1, int(metrics["kidnaps"]) + 1)]
+
+
+def over_seeds(runs: Sequence[Mapping[str, Any]], converge_within: int) -> dict[str, Any]:
+    """One localizer's figures over its evaluation runs (one metrics dict per seed, in seed
+    order; see the module docstring)."""
+    if not runs:
+        raise ValueError("over_seeds: no runs")
+    steps = [float(r["steps_to_converge"]) for r in runs]
+    quick = [int(bool(r["converged"]) and r["steps_to_converge"] <= converge_within) for r in runs]
+    out: dict[str, Any] = {"n_seeds": len(runs), "converge_within_steps": converge_within}
+    out |= _rate("convergence_success", sum(quick), len(runs))
+    out |= _rate("converged", sum(int(bool(r["converged"])) for r in runs), len(runs))
+    out |= _mean("steps_to_converge", steps)
+    out["steps_to_converge_median"] = float(np.median(steps))
+    out["steps_to_converge_max"] = max(steps)
+    kidnapped = [r for r in runs if r.get("kidnaps")]
+    if kidnapped:
+        counts = [c for r in kidnapped for c in recovery_counts(r)]
+        recovered = sum(
+            round(float(r["kidnaps_recovered_frac"]) * int(r["kidnaps"])) for r in kidnapped
+        )
+        out["n_kidnaps"] = len(counts)
+        out |= _mean("recovered", [float(r["recovered"]) for r in kidnapped])
+        out |= _rate("kidnaps_recovered_frac", recovered, len(counts))
+        out["recovery_steps_mean"] = float(np.mean(counts))
+        out["recovery_steps_median"] = float(np.median(counts))
+        out["recovery_steps_max"] = max(counts)
+    for name in ("relosses", "false_convergences"):
+        values = [float(r[name]) for r in runs if r.get(name) is not None]
+        if len(values) == len(runs):
+            out |= _mean(name, values)
+    out["seeds"] = {
+        str(i): {
+            "convergence_success": quick[i],
+            "steps_to_converge": steps[i],
+            **{
+                k: r[k]
+                for k in (
+                    "kidnaps_recovered_frac",
+                    "recovery_steps_max",
+                    "relosses",
+                    "false_convergences",
+                )
+                if r.get(k) is not None
+            },
+        }
+        for i, r in enumerate(runs)
+    }
+    return out
+
+
+def global_localization(
+    localization: Mapping[str, Mapping[str, Mapping[str, Any]]],
+    evaluation_sets: Mapping[str, Sequence[str]],
+    converge_within: int,
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """{map: {localizer: figures over seeds}} from the per-trajectory metrics
+    {trajectory: {localizer: metrics}}; `evaluation_sets` names each map's evaluation runs in
+    seed order. A localizer is scored over the runs that have it (n_seeds says how many)."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for map_name, trajectories in evaluation_sets.items():
+        missing = [t for t in trajectories if t not in localization]
+        if missing:
+            raise ValueError(f"global localization of {map_name}: no metrics for {missing}")
+        methods = sorted({m for t in trajectories for m in localization[t]})
+        out[map_name] = {
+            m: over_seeds(
+                [localization[t][m] for t in trajectories if m in localization[t]], converge_within
+            )
+            for m in methods
+        }
+    return out
