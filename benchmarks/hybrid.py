@@ -13,6 +13,12 @@ model.pt, from `dvc repro train_scanlocnet@sparse_obstacles`) when it exists, el
 one of conf/scanlocnet.yaml's architecture. An untrained network decodes more slowly (its
 branch and bound prunes little), so its figures are a worst case; the JSON names which ran.
 
+Two hybrids: the constant share (`mixture_share` of particles from the proposal, and so the
+network, on every update) and the adaptive one (hybrid.py's adaptive mixing: the network runs
+only on updates whose share is > 0, so its cost is amortised); on this clean drive from a known
+pose the adaptive one should not need the network at all. Each reports the share of updates
+that ran the network; its Hz include the network's cost where it ran.
+
 Run: python benchmarks/hybrid.py [--quick] [--model PATH]. Last line: JSON.
 """
 
@@ -38,7 +44,6 @@ from amcl import (  # benchmarks/amcl.py, beside this script
 from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal
 from scanloc.localize.learned_localizer import scan_hypotheses
 from scanloc.localize.mcl.config import MclConfig, build_filter
-from scanloc.localize.mcl.estimator import map_bins
 from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.models.pose_grid import PoseGrid
 from scanloc.models.training import build_model
@@ -101,21 +106,27 @@ def main() -> None:
         plain = compiled_filter(grid, spec, params)
         plain.initialize_pose(odom[0])
         plain_s = median_update_s(plain, odom, ranges, repeats, per_repeat)
-        hybrid = HybridParams()
-        proposal = LearnedProposal(hypotheses_of, UniformProposal(grid), hybrid)
-        weighting = ImportanceWeights(proposal, hybrid, map_bins(grid))
-        config = MclConfig.from_ros(params | {"publish_every_update": True}, source="benchmark")
-        filter_ = build_filter(grid, spec, config, 0, proposal=proposal, weighting=weighting)
-        filter_.initialize_pose(odom[0])
-        hybrid_s = median_update_s(filter_, odom, ranges, repeats, per_repeat)
         key = f"{n // 1000}k"
         figures[f"amcl_hz_{key}"] = round(1.0 / plain_s, 1)
-        figures[f"hybrid_hz_{key}"] = round(1.0 / hybrid_s, 1)
-        figures[f"hybrid_cost_ratio_{key}"] = round(hybrid_s / plain_s, 2)
-        print(
-            f"{n:>5} particles: amcl {plain_s * 1e3:6.2f} ms ({1 / plain_s:6.1f} Hz), hybrid "
-            f"{hybrid_s * 1e3:6.2f} ms ({1 / hybrid_s:6.1f} Hz), {hybrid_s / plain_s:.2f}x"
-        )
+        config = MclConfig.from_ros(params | {"publish_every_update": True}, source="benchmark")
+        for label, hybrid in (
+            ("hybrid", HybridParams()),
+            ("adaptive_hybrid", HybridParams(adaptive_mixing=True)),
+        ):
+            proposal = LearnedProposal(hypotheses_of, UniformProposal(grid), hybrid)
+            weighting = ImportanceWeights(proposal, hybrid)
+            filter_ = build_filter(grid, spec, config, 0, proposal=proposal, weighting=weighting)
+            filter_.initialize_pose(odom[0])
+            hybrid_s = median_update_s(filter_, odom, ranges, repeats, per_repeat)
+            network_share = proposal.inferences / max(1, weighting.updates)
+            figures[f"{label}_hz_{key}"] = round(1.0 / hybrid_s, 1)
+            figures[f"{label}_cost_ratio_{key}"] = round(hybrid_s / plain_s, 2)
+            figures[f"{label}_network_share_{key}"] = round(network_share, 3)
+            print(
+                f"{n:>5} particles: amcl {plain_s * 1e3:6.2f} ms ({1 / plain_s:6.1f} Hz), {label} "
+                f"{hybrid_s * 1e3:6.2f} ms ({1 / hybrid_s:6.1f} Hz), {hybrid_s / plain_s:.2f}x; "
+                f"network on {100 * network_share:.0f} % of updates"
+            )
     print(json.dumps(figures))
 
 

@@ -14,11 +14,9 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from scanloc.evaluate.metrics import convergence_metrics
-from scanloc.localize.clustering import particle_bins
-from scanloc.localize.hybrid import BIN_VOLUME, HybridParams, ImportanceWeights, LearnedProposal
+from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal
 from scanloc.localize.hybrid import _mixture_density as mixture_density
 from scanloc.localize.mcl.config import build_filter
-from scanloc.localize.mcl.estimator import map_bins
 from scanloc.localize.mcl.filter import ParticleFilter, run_filter
 from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.models.scanlocnet import Hypotheses
@@ -33,7 +31,7 @@ HYBRID_ROS = {"laser_model_type": "likelihood_field_prob", "resample_interval": 
 
 def hybrid_filter(proposal: LearnedProposal, hybrid: HybridParams, seed: int = 0) -> ParticleFilter:
     """The particle filter with the learned proposal and its importance weights plugged in."""
-    weighting = ImportanceWeights(proposal, hybrid, map_bins(GRID))
+    weighting = ImportanceWeights(proposal, hybrid)
     config = ros(**HYBRID_ROS, publish_every_update=True)
     return build_filter(GRID, SPEC, config, seed, proposal=proposal, weighting=weighting)
 
@@ -97,10 +95,11 @@ def test_proposal_density_is_normalised_over_the_map() -> None:
     assert proposal.inferences == 1  # one network run per observed scan, however often used
 
 
-def test_proposed_particles_get_the_balance_heuristic_weights() -> None:
-    """After the weighting's mixture step, every weight equals p_prior(x) / m(x) with
-    p_prior = (1 - ε) bel_motion + ε u and m = (1 - φ) bel_motion + φ q, bel_motion being
-    the current particles' weight per KLD bin: recomputed here particle by particle."""
+def test_proposed_particles_get_the_mixture_weights() -> None:
+    """After the weighting's mixture step, every weight is its carried weight (α w_j for a
+    motion particle, β / m for a proposed one) times bel⁻(x) / d(x), bel⁻ = (1 - ε) b + ε u and
+    d = α b + β q, with b the kernel density of the weighted particles: recomputed here
+    particle by particle with scipy."""
     traj = drive_trajectory(GRID, 30, seed=1, clearance=0.25)
     ranges = ug01_scans(GRID, traj.truth, seed=2)
     hybrid = HybridParams(mixture_share=0.2, kidnap_probability=0.05)
@@ -108,25 +107,47 @@ def test_proposed_particles_get_the_balance_heuristic_weights() -> None:
     amcl = hybrid_filter(proposal, hybrid)
     amcl.initialize_pose(traj.truth[0])
     amcl.update(traj.odometry[0], ranges[0])
-    amcl.update(traj.odometry[0], ranges[0])  # resampled once: the mixture step is active
-    before_poses, before_weights = amcl.poses.copy(), amcl.weights.copy()
-    poses, weights = amcl.weighting.predict(amcl.poses, amcl.weights, amcl.rng)
-    n = len(before_poses)
-    assert len(poses) == n + round(0.2 * n)
+    before_poses = amcl.poses.copy()
+    before_weights = np.random.default_rng(3).dirichlet(np.ones(len(before_poses)))
+    poses, weights = amcl.weighting.predict(before_poses, before_weights, amcl.rng)
+    n, m = len(before_poses), round(0.2 * len(before_poses))
+    assert len(poses) == n + m
     np.testing.assert_array_equal(poses[:n], before_poses)
-    dims = map_bins(GRID)
-    bins_before = particle_bins(before_poses, dims)
-    bins_all = particle_bins(poses, dims)
-    u = UniformProposal(GRID).uniform_density
-    expected = np.empty(len(poses))
-    for i, pose in enumerate(poses):
-        bel = before_weights[bins_before == bins_all[i]].sum() / BIN_VOLUME
-        q = 0.9 * brute_mixture(pose[None], proposal.means, proposal.stds, proposal.weights)[0]
-        free = proposal.uniform.density(pose[None])[0] > 0
-        q += 0.1 * (u if free else 0.0)
-        prior = 0.95 * bel + 0.05 * (u if free else 0.0)
-        expected[i] = prior / (0.8 * bel + 0.2 * q)
-    np.testing.assert_allclose(weights, expected / expected.sum(), rtol=1e-9)
+    stds = np.broadcast_to([0.05, 0.05, 0.05], before_poses.shape)
+    bel = brute_mixture(poses, before_poses, stds, before_weights)
+    q = 0.9 * brute_mixture(poses, proposal.means, proposal.stds, proposal.weights)
+    u = proposal.uniform.density(poses)
+    q += 0.1 * u
+    alpha, beta = n / (n + m), m / (n + m)
+    carried = np.concatenate([alpha * before_weights, np.full(m, beta / m)])
+    expected = carried * (0.95 * bel + 0.05 * u) / (alpha * bel + beta * q)
+    # (atol: the density drops kernel terms below e⁻²⁵ of their peak)
+    np.testing.assert_allclose(weights, expected / expected.sum(), rtol=1e-6, atol=1e-12)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    b=st.floats(1e-6, 1e3),
+    err=st.floats(-3.0, 3.0),
+    q=st.floats(1e-6, 1e3),
+    u=st.floats(1e-3, 1.0),
+    eps=st.floats(0.0, 0.9),
+    share=st.floats(0.01, 0.99),
+)
+def test_a_misestimated_motion_density_moves_the_weight_factor_no_more_than_itself(
+    b: float, err: float, q: float, u: float, eps: float, share: float
+) -> None:
+    """The bound of hybrid.py's docstring: |ln r(b̂) - ln r(b)| <= |ln(b̂ / b)| for the factor
+    r(b) = ((1 - ε) b + ε u) / (α b + β q), and r stays between its two limits."""
+    alpha, beta = 1.0 - share, share
+
+    def r(bel: float) -> float:
+        return ((1.0 - eps) * bel + eps * u) / (alpha * bel + beta * q)
+
+    b_hat = b * math.exp(err)
+    assert abs(math.log(r(b_hat)) - math.log(r(b))) <= abs(err) + 1e-9
+    low, high = sorted(((1.0 - eps) / alpha, eps * u / (beta * q)))
+    assert low * (1 - 1e-9) <= r(b_hat) <= high * (1 + 1e-9)
 
 
 def test_injected_and_initial_particles_are_weighted_u_over_q() -> None:
@@ -198,3 +219,44 @@ def test_bad_parameters_are_rejected() -> None:
             hypotheses_from(lambda _: np.zeros(3), 0.1), UniformProposal(GRID), HybridParams()
         ).sample(3, np.random.default_rng(0))
     assert math.isfinite(HybridParams().kidnap_probability)
+
+
+# The adaptive defaults (alphas 0.05 / 0.5, threshold 0.7). On this drive's clean stretch
+# w_fast / w_slow falls to 0.36 at its lowest (lost 0.64), after the kidnap to 0.13.
+ADAPTIVE = HybridParams(adaptive_mixing=True, mixture_share=0.5)
+
+
+def adaptive_hybrid(traj, ranges, poses_of, seed: int = 0) -> ParticleFilter:
+    """The adaptive hybrid with amcl's recovery off (the adaptive share is its recovery)."""
+    proposal = LearnedProposal(hypotheses_from(poses_of, 0.1), UniformProposal(GRID), ADAPTIVE)
+    weighting = ImportanceWeights(proposal, ADAPTIVE)
+    config = ros(**HYBRID_ROS, publish_every_update=True, recovery_alpha_slow=0.0)
+    return build_filter(GRID, SPEC, config, seed, proposal=proposal, weighting=weighting)
+
+
+def test_adaptive_mixing_leaves_a_localized_filter_as_amcl(drive) -> None:
+    """On a clean drive from a known pose the likelihood never falls below the threshold: no
+    proposal particle is drawn and the network never runs, so the estimates equal amcl's with
+    the same sensor model and settings exactly (tolerance 0)."""
+    traj, all_ranges = drive
+    poses_of = truth_of_scan(traj, all_ranges, 0.05)
+    clean = traj.__class__(traj.times[:180], traj.truth[:180], traj.odometry[:180])
+    ranges = all_ranges[:180]
+    amcl = build_filter(
+        GRID, SPEC, ros(**HYBRID_ROS, publish_every_update=True, recovery_alpha_slow=0.0), 0
+    )
+    plain = run_filter(amcl, clean, ranges, "tracking").table
+    pf = adaptive_hybrid(clean, ranges, poses_of)
+    hybrid = run_filter(pf, clean, ranges, "tracking").table
+    assert pf.weighting.mixed_updates == 0 and pf.proposal.inferences == 0
+    assert pf.weighting.updates >= 30
+    assert hybrid.equals(plain)
+
+
+def test_adaptive_mixing_draws_proposals_after_a_kidnap(drive) -> None:
+    traj, ranges = drive
+    pf = adaptive_hybrid(traj, ranges, truth_of_scan(traj, ranges, 0.05))
+    table = run_filter(pf, traj, ranges, "tracking").table
+    m = convergence_metrics(traj.truth, table, traj.kidnap_steps)
+    assert m["recovered"] == 1 and m["recovery_steps_1"] <= 30
+    assert 0 < pf.weighting.mixed_updates < 0.2 * pf.weighting.updates

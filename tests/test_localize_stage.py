@@ -4,6 +4,7 @@ overridden from the command line."""
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 from collections.abc import Iterator, Mapping
@@ -115,7 +116,19 @@ def test_only_must_name_a_listed_localizer(
 def test_the_shipped_lists_are_the_pipelines_localizers() -> None:
     """What evaluate and the report expect of each stage (the former hand-written lists)."""
     listed = stage_localizers("localize", CONF / "localizer")
-    expected = ["amcl", "amcl_global", "amcl_recovery", "hybrid", "scanlocnet", "scanlocnet_track"]
+    expected = [
+        "amcl",
+        "amcl_global",
+        "amcl_global_matched",
+        "amcl_recovery",
+        "amcl_recovery_augmented",
+        "amcl_recovery_matched",
+        "hybrid",
+        "hybrid_no_proposal",
+        "hybrid_start_only",
+        "scanlocnet",
+        "scanlocnet_track",
+    ]
     assert listed == expected
     cnn = stage_localizers("localize_cnn", CONF / "localizer")
     assert cnn == ["cnn_ekf", "cnn_ensemble", "cnn_single"]
@@ -127,3 +140,42 @@ def test_the_shipped_lists_are_the_pipelines_localizers() -> None:
 def test_a_kind_cannot_be_registered_twice() -> None:
     with pytest.raises(ValueError, match="'amcl' is registered twice"):
         register_kind("amcl")(lambda cfg, inputs: Localization(pd.DataFrame(), 0.0, []))
+
+
+def test_the_odometry_source_and_the_laser_mount_reach_the_localizers(
+    run_dir: Path, dummy_kind: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`odometry=laser` hands every localizer laser_odometry.npy as its odometry, and the run's
+    meta.json `laser_mount` arrives in LocalizeInputs; a run without laser odometry fails
+    naming its folder."""
+    seen: dict[str, Any] = {}
+
+    @register_kind("dummy_inputs")
+    def run_inputs(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+        seen["odometry"], seen["mount"] = inputs.trajectory.odometry, inputs.laser_mount
+        steps = len(inputs.trajectory.times)
+        covs = np.tile(np.eye(3), (steps, 1, 1))
+        table = estimate_table(np.arange(steps), inputs.trajectory.times, seen["odometry"], covs, 1)
+        return Localization(table, 0.0, np.zeros(steps))
+
+    try:
+        (run_dir / "conf" / "localizer" / "dummy.yaml").write_text(
+            DUMMY.replace("dummy_offset", "dummy_inputs")
+        )
+        traj_dir = run_dir / "traj"
+        with pytest.raises(FileNotFoundError, match=f"{traj_dir}: odometry=laser"):
+            localize(run_dir, monkeypatch, "odometry=laser")
+        wheel = np.load(traj_dir / "odometry.npy")
+        np.save(traj_dir / "laser_odometry.npy", wheel + 0.5)
+        meta = json.loads((traj_dir / "meta.json").read_text())
+        meta["laser_mount"] = [0.08, 0.0, 0.0]
+        (traj_dir / "meta.json").write_text(json.dumps(meta))
+        localize(run_dir, monkeypatch)
+        np.testing.assert_array_equal(seen["odometry"], wheel)
+        assert seen["mount"] == (0.08, 0.0, 0.0)
+        localize(run_dir, monkeypatch, "odometry=laser")
+        np.testing.assert_array_equal(seen["odometry"], wheel + 0.5)
+        with pytest.raises(ValueError, match="field 'odometry': expected one of"):
+            localize(run_dir, monkeypatch, "odometry=gps")
+    finally:
+        del LOCALIZER_KINDS["dummy_inputs"]

@@ -19,13 +19,33 @@ for mobile robots", 2001):
 - initialisation without a pose (on the first scan): particles from q, weighted by the prior
   over q, u(x) / q(x), u uniform over the free space;
 - recovery (amcl's w_slow / w_fast injection): injected poses from q, weighted u(x) / q(x);
-- every update, `mixture_share` · N extra particles from q. All particles are then weighted by
-  the balance heuristic of multiple importance sampling: w = p(z|x) · bel⁻(x) / m(x), with
-  m = (1 - φ) · bel⁻_motion(x) + φ · q(x) the density they were drawn from, and bel⁻ =
-  (1 - ε) · bel⁻_motion + ε · u the prediction with a kidnap probability ε; bel⁻_motion is the
-  motion-predicted particles' density, histogrammed in amcl's 0.5 m × 0.5 m × 10° bins.
-  These weights are approximate (they replace the predicted particles' weights rather than
-  multiply them); they are kept as they are here.
+- at an update, m = round(φ N) extra particles from q beside the N motion-predicted ones.
+
+The weights of an update with m > 0 (the derivation). The motion-predicted particles x̃_j with
+their carried weights w_j (normalised) are a weighted sample of the motion prediction
+b(x) = Σ_i w_i p(x | x_i, u); the m proposed y_l, each weighing 1/m, are a sample of q. With
+the shares α = N/(N+m) and β = m/(N+m) the union {(x̃_j, α w_j), (y_l, β/m)} is a weighted
+sample of the mixture d = α b + β q, which is what the particles were drawn from. The target
+is the posterior p(z|x) bel⁻(x), bel⁻ = (1 - ε) b + ε u (ε: the kidnap probability per
+update), so each particle's weight is multiplied by r(x) = bel⁻(x) / d(x), then by the sensor
+model's p(z|x) (the filter's sensor update):
+    w_j ← α w_j r(x̃_j) p(z|x̃_j),   w_l ← (β/m) r(y_l) p(z|y_l).
+With m = 0 (no proposal particle) the union is the motion sample alone and the update is
+amcl's, w_j ← w_j p(z|x̃_j): the kidnap share ε then has no particle to weigh.
+b is evaluated as a Gaussian kernel density of the predicted particles with their carried
+weights, b̂(x) = Σ_j w_j N(x; x̃_j, diag(h_xy², h_xy², h_θ²)) (numba), not histogrammed; its
+kernels sit at `kernel_centres` (M) of the particles picked by weight, which keeps the cost at
+O((N + m) M).
+The error this leaves is bounded: r is a ratio of two functions affine in b, so
+|ln r(b̂) - ln r(b)| ≤ |ln(b̂ / b)| (its logarithmic derivative in ln b is a difference of
+two numbers in [0, 1]); and r always lies between (1 - ε)/α and ε u / (β q), whatever b̂.
+tests/test_hybrid_posterior.py checks the weights against a brute-force Bayes filter on a grid.
+
+Adaptive mixing (`adaptive_mixing`): the share follows the scan likelihood as in augmented MCL.
+Short- and long-term averages of the mean sensor factor (alphas `adaptive_alpha_fast` /
+`_slow`) give lost = 1 - w_fast / w_slow; the share is φ · clip((lost - τ) / (1 - τ), 0, 1)
+with the threshold τ = `adaptive_threshold`, so while the filter is localized (lost ≤ τ) no
+proposal particle is drawn, the update is amcl's, and the network does not run.
 """
 
 from __future__ import annotations
@@ -37,12 +57,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from scanloc.localize.clustering import BIN_THETA, BIN_XY, particle_bins
 from scanloc.localize.config_params import params_from_config
 from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.pose import wrap_angle, wrap_pi
-
-BIN_VOLUME = BIN_XY * BIN_XY * BIN_THETA  # m² rad
 
 
 @dataclass(frozen=True)
@@ -56,15 +73,26 @@ class HybridParams:
     uniform_share: float = 0.1
     mixture_share: float = 0.05
     kidnap_probability: float = 0.1
+    kernel_std_xy: float = 0.05
+    kernel_std_theta: float = 0.05
+    kernel_centres: int = 500
+    adaptive_mixing: bool = False
+    adaptive_alpha_slow: float = 0.05
+    adaptive_alpha_fast: float = 0.5
+    adaptive_threshold: float = 0.7
 
     def __post_init__(self) -> None:
         if self.k < 1 or self.std_inflation <= 0 or min(self.min_std_xy, self.min_std_theta) <= 0:
             raise ValueError(
                 "need k >= 1, std_inflation > 0 and positive standard-deviation floors"
             )
-        for name in ("uniform_share", "mixture_share", "kidnap_probability"):
+        if min(self.kernel_std_xy, self.kernel_std_theta) <= 0 or self.kernel_centres < 1:
+            raise ValueError("need kernel_std_xy, kernel_std_theta > 0 and kernel_centres >= 1")
+        for name in ("uniform_share", "mixture_share", "kidnap_probability", "adaptive_threshold"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise ValueError(f"{name} must lie in [0, 1), got {getattr(self, name)}")
+        if not (0 < self.adaptive_alpha_slow <= 1 and 0 < self.adaptive_alpha_fast <= 1):
+            raise ValueError("adaptive_alpha_slow / _fast must lie in (0, 1]")
 
     @classmethod
     def from_config(cls, config: Mapping[str, object]) -> HybridParams:
@@ -165,12 +193,16 @@ class LearnedProposal:
 
 class ImportanceWeights:
     """The hybrid's weighting of proposed particles (see the module docstring): u(x) / q(x) for
-    the initialisation's and the recovery's, and the balance heuristic over the motion-predicted
-    particles plus `mixture_share` · N from q at every update."""
+    the initialisation's and the recovery's, and the mixture weights of the motion-predicted
+    particles plus the proposal's share at an update."""
 
-    def __init__(self, proposal: LearnedProposal, params: HybridParams, dims: np.ndarray) -> None:
-        self.proposal, self.params, self.dims = proposal, params, dims
+    def __init__(self, proposal: LearnedProposal, params: HybridParams) -> None:
+        self.proposal, self.params = proposal, params
         self.uniform = proposal.uniform
+        p = params
+        self.kernel_stds = np.array([p.kernel_std_xy, p.kernel_std_xy, p.kernel_std_theta])
+        self.w_slow = self.w_fast = 0.0
+        self.updates = self.mixed_updates = 0
 
     def _prior_over_proposal(self, poses: np.ndarray) -> np.ndarray:
         q = self.proposal.density(poses)
@@ -184,31 +216,78 @@ class ImportanceWeights:
         """Recovery poses stand for amcl's uniform injection: weighted u(x) / q(x)."""
         return self._prior_over_proposal(poses)
 
+    def observe_likelihood(self, w_avg: float) -> None:
+        """Follow the mean sensor factor of an update: the adaptive share's averages."""
+        p = self.params
+        self.w_slow = (
+            w_avg
+            if self.w_slow == 0.0
+            else self.w_slow + p.adaptive_alpha_slow * (w_avg - self.w_slow)
+        )
+        self.w_fast = (
+            w_avg
+            if self.w_fast == 0.0
+            else self.w_fast + p.adaptive_alpha_fast * (w_avg - self.w_fast)
+        )
+
+    def counts(self) -> dict[str, int]:
+        """Updates, those that drew proposed particles, and the network's runs."""
+        return {
+            "n_updates": self.updates,
+            "n_mixed_updates": self.mixed_updates,
+            "n_network_runs": self.proposal.inferences,
+        }
+
+    def share(self) -> float:
+        """φ, or with adaptive mixing φ scaled by how far the likelihood fell (module doc)."""
+        p = self.params
+        if not p.adaptive_mixing:
+            return p.mixture_share
+        lost = 1.0 - self.w_fast / self.w_slow if self.w_slow > 0.0 else 0.0
+        scale = (lost - p.adaptive_threshold) / (1.0 - p.adaptive_threshold)
+        return p.mixture_share * min(max(scale, 0.0), 1.0)
+
     def predict(
         self, poses: np.ndarray, weights: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Add the proposal's share of particles and weight every particle by the balance
-        heuristic (the sensor update follows)."""
-        h = self.params
-        if h.mixture_share <= 0:
+        """Add the proposal's share of particles and multiply every carried weight by
+        bel⁻ / d (the sensor update follows); with no proposal particle, amcl's update."""
+        self.updates += 1
+        share = self.share()
+        if share <= 0:
             return poses, weights
-        extra = self.proposal.sample(max(1, round(h.mixture_share * len(poses))), rng)
-        motion = np.concatenate([poses, extra])
-        bel_motion = self.motion_density(poses, weights, motion)
-        prior = (1.0 - h.kidnap_probability) * bel_motion
-        prior += h.kidnap_probability * self.uniform.density(motion)
-        drawn = (1.0 - h.mixture_share) * bel_motion + h.mixture_share * self.proposal.density(
-            motion
-        )
+        self.mixed_updates += 1
+        n, eps = len(poses), self.params.kidnap_probability
+        m = max(1, round(share * n))
+        extra = self.proposal.sample(m, rng)
+        union = np.ascontiguousarray(np.concatenate([poses, extra]))
+        alpha, beta = n / (n + m), m / (n + m)
+        bel_motion = self.motion_density(poses, weights, union)
+        prior = (1.0 - eps) * bel_motion + eps * self.uniform.density(union)
+        drawn = alpha * bel_motion + beta * self.proposal.density(union)
         with np.errstate(divide="ignore", invalid="ignore"):
-            new = np.where(drawn > 0, prior / drawn, 0.0)
+            ratio = np.where(drawn > 0, prior / drawn, 0.0)
+        new = np.concatenate([alpha * weights, np.full(m, beta / m)]) * ratio
         total = new.sum()
-        new = new / total if total > 0 else np.full(len(motion), 1.0 / len(motion))
-        return np.ascontiguousarray(motion), new
+        new = new / total if total > 0 else np.full(len(union), 1.0 / len(union))
+        return union, new
 
     def motion_density(self, poses: np.ndarray, weights: np.ndarray, at: np.ndarray) -> np.ndarray:
-        """The density (per m² rad) of the weighted particles `poses` at `at`, histogrammed in
-        amcl's bins."""
-        hist = np.zeros(int(np.prod(self.dims[2:])))
-        np.add.at(hist, particle_bins(poses, self.dims), weights)
-        return hist[particle_bins(np.ascontiguousarray(at), self.dims)] / BIN_VOLUME
+        """b̂ at `at`: the Gaussian kernel density (per m² rad) of the weighted particles, its
+        kernels at `kernel_centres` of them picked by weight (deterministic systematic
+        resampling, each weighing 1/M; all of them, with their weights, when there are fewer):
+        the cost is O((N + m) M) instead of O((N + m) N)."""
+        centres, centre_weights = poses, weights
+        m = self.params.kernel_centres
+        if len(poses) > m:
+            cumulative = np.cumsum(weights)
+            picks = np.searchsorted(cumulative, (np.arange(m) + 0.5) / m * cumulative[-1])
+            centres = poses[np.minimum(picks, len(poses) - 1)]
+            centre_weights = np.full(m, 1.0 / m)
+        stds = np.broadcast_to(self.kernel_stds, centres.shape)
+        return _mixture_density(
+            np.ascontiguousarray(at, dtype=np.float64),
+            np.ascontiguousarray(centres, dtype=np.float64),
+            np.ascontiguousarray(stds),
+            np.ascontiguousarray(centre_weights, dtype=np.float64),
+        )

@@ -24,7 +24,6 @@ from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProp
 from scanloc.localize.hypothesis_tracker import TrackerParams, track_hypotheses
 from scanloc.localize.learned_localizer import localize_learned, scan_hypotheses
 from scanloc.localize.mcl.config import MclConfig, build_filter, run_mcl
-from scanloc.localize.mcl.estimator import map_bins
 from scanloc.localize.mcl.filter import run_filter
 from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.sensor.laser import LaserSpec
@@ -54,12 +53,15 @@ def register_kind(kind: str) -> Callable[[Kind], Kind]:
 @dataclass(frozen=True)
 class LocalizeInputs:
     """What a localizer sees: the run (times, odometry; truth only to start tracking), its
-    scans, the map and the laser."""
+    scans, the map, the laser and where the laser sits on the robot (x, y, θ in the base
+    frame; the particle filters cast beams from base ⊕ mount, the learned localizers take the
+    scans as they are)."""
 
     trajectory: Trajectory
     ranges: np.ndarray
     map_yaml: Path
     laser: LaserSpec
+    laser_mount: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @cached_property
     def grid(self) -> OccupancyGrid:
@@ -95,6 +97,7 @@ def run_amcl_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localizatio
         MclConfig.from_ros(cfg),
         mode=str(cfg.get("mode", "tracking")),
         seed=int(cfg.get("seed", 0)),
+        laser_mount=inputs.laser_mount,
     )
     return run._replace(setup_s=run.setup_s + loaded)
 
@@ -110,9 +113,15 @@ def run_hybrid_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localizat
     _, hypotheses_of, _ = scan_hypotheses(Path(cfg["model"]), inputs.ranges, **learned_options(cfg))
     uniform = UniformProposal(grid, config.map_half_cell_offset)
     proposal = LearnedProposal(hypotheses_of, uniform, hybrid)
-    weighting = ImportanceWeights(proposal, hybrid, map_bins(grid))
+    weighting = ImportanceWeights(proposal, hybrid)
     pf = build_filter(
-        grid, inputs.laser, config, int(cfg.get("seed", 0)), proposal=proposal, weighting=weighting
+        grid,
+        inputs.laser,
+        config,
+        int(cfg.get("seed", 0)),
+        proposal=proposal,
+        weighting=weighting,
+        laser_mount=inputs.laser_mount,
     )
     return run_filter(
         pf,

@@ -6,11 +6,15 @@ A stage runs the localizers whose conf/localizer/<name>.yaml lists it under `sta
 the stage's config, with the stage's own overrides (map_name, sensor, ...), so that adding a
 localizer is adding one yaml file. `++localizers.<name>.<key>=...` overrides a listed
 localizer's field; `only=<name>` runs just one; `localizer=<config>` runs that config alone.
+`odometry=wheel|laser` picks the run's odometry stream for every localizer; the laser's
+mounting on the robot comes from the run's meta.json `laser_mount` (zero when absent).
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +28,7 @@ from scanloc.localize.kinds import LocalizeInputs, run_localizer
 from scanloc.progress import steps
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
-from scanloc.trajectory.format import load_trajectory
+from scanloc.trajectory.format import Trajectory, load_trajectory
 
 
 def localizers_to_run(
@@ -39,12 +43,57 @@ def localizers_to_run(
     return compose(config_name=stage, overrides=[*overrides, *listed]).localizers
 
 
+ODOMETRY_SOURCES = ("wheel", "laser")
+
+
+def laser_mount(run_dir: Path) -> tuple[float, float, float]:
+    """The laser's pose (x, y, θ) on the robot base from the run's meta.json `laser_mount`
+    (real logs and bags carry it); zero when absent."""
+    meta_path = run_dir / "meta.json"
+    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    mount = meta.get("laser_mount")
+    if mount is None:
+        return (0.0, 0.0, 0.0)
+    values = list(mount.values()) if isinstance(mount, dict) else mount
+    try:
+        x, y, theta = (float(v) for v in values)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"{meta_path}: field 'laser_mount': expected [x, y, yaw] (m, m, rad), got {mount!r}"
+        ) from None
+    return (x, y, theta)
+
+
+def select_odometry(traj: Trajectory, source: str, run_dir: Path) -> Trajectory:
+    """The run with the odometry stream `source` names (wheel: odometry.npy; laser:
+    laser_odometry.npy, scan-to-scan registration) as the odometry every localizer uses."""
+    if source not in ODOMETRY_SOURCES:
+        raise ValueError(
+            f"conf/_localize_run.yaml: field 'odometry': expected one of {ODOMETRY_SOURCES}, "
+            f"got {source!r}"
+        )
+    if source == "wheel":
+        return traj
+    if traj.laser_odometry is None:
+        raise FileNotFoundError(
+            f"{run_dir}: odometry=laser asks for laser_odometry.npy, which this run lacks "
+            "(scanloc.real.laser_odometry writes it)"
+        )
+    return replace(traj, odometry=traj.laser_odometry)
+
+
 def localize_all(cfg: DictConfig, stage: str, overrides: Sequence[str]) -> dict[str, Any]:
     """Run the stage's localizers (or just cfg.only) on the trajectory; write each table;
     return the timing figures per localizer."""
-    traj, ranges = load_trajectory(cfg.trajectory_dir)
+    run_dir = Path(cfg.trajectory_dir)
+    traj, ranges = load_trajectory(run_dir)
+    traj = select_odometry(traj, str(cfg.get("odometry", "wheel")), run_dir)
     inputs = LocalizeInputs(
-        traj, ranges, Path(cfg.map_yaml), laser_spec_from_config(to_dict(cfg.sensor))
+        traj,
+        ranges,
+        Path(cfg.map_yaml),
+        laser_spec_from_config(to_dict(cfg.sensor)),
+        laser_mount(run_dir),
     )
     localizers = localizers_to_run(cfg, stage, overrides)
     names = list(localizers) if cfg.only is None else [str(cfg.only)]

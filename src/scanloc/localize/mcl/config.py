@@ -121,13 +121,15 @@ def build_filter(
     seed: int = 0,
     proposal: Proposal | None = None,
     weighting: Weighting | None = None,
+    laser_mount: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> ParticleFilter:
-    """The particle filter `config` describes, on `grid` with the laser `spec`; the proposal
-    defaults to amcl's uniform one over the free space, the weighting to amcl's."""
+    """The particle filter `config` describes, on `grid` with the laser `spec` mounted at
+    `laser_mount` (x, y, θ in the base frame); the proposal defaults to amcl's uniform one over
+    the free space, the weighting to amcl's."""
     config = config or MclConfig()
     dims = map_bins(grid)
     p = config.filter
-    laser = LaserGeometry.of(spec, config.laser)
+    laser = LaserGeometry.of(spec, config.laser, laser_mount)
     model = SENSOR_MODELS[config.laser_model_type]
     return ParticleFilter(
         params=p,
@@ -153,9 +155,10 @@ def run_mcl(
     config: MclConfig | None = None,
     mode: str = "tracking",
     seed: int = 0,
+    laser_mount: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> Localization:
     """amcl over a driven trajectory: tracking from the true first pose with the initial_cov_*
     covariance, or global from particles uniform over the free space (see filter.run_filter)."""
     start = time.perf_counter()
-    pf = build_filter(grid, spec, config, seed=seed)
+    pf = build_filter(grid, spec, config, seed=seed, laser_mount=laser_mount)
     return run_filter(pf, trajectory, ranges, mode, time.perf_counter() - start)

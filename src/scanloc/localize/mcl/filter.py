@@ -241,6 +241,7 @@ class ParticleFilter:
         if total > 0.0:
             w_avg = total / n
             self.weights /= total
+            self.weighting.observe_likelihood(w_avg)
             p = self.params
             self.w_slow = (
                 w_avg
@@ -294,7 +295,8 @@ def run_filter(
     """Run a built filter over a trajectory (`times`, `truth`, `odometry` arrays, see
     trajectory.Trajectory): tracking from the true first pose, or global. Setup (building the
     filter, `setup_s`, and the kernels' first call) is timed apart from the per-scan updates.
-    Rows between filter updates hold the last estimate carried forward by odometry."""
+    Rows between filter updates hold the last estimate carried forward by odometry. Its counts:
+    the recovery's injected particles and the weighting's own (Weighting.counts)."""
     if mode not in ("tracking", "global"):
         raise ValueError(f"mode must be 'tracking' or 'global', got {mode!r}")
     times = np.asarray(trajectory.times)  # type: ignore[attr-defined]
@@ -325,4 +327,5 @@ def run_filter(
         np.array([est.cov for est in estimates]),
         np.array([est.n_particles for est in estimates]),
     )
-    return Localization(table, setup_s, seconds)
+    counts = {"n_injected": pf.resampler.injected} | pf.weighting.counts()
+    return Localization(table, setup_s, seconds, counts)

@@ -94,6 +94,14 @@ class Weighting(Protocol):
         """Weights of the poses a recovery injects while resampling (a resampled one: 1)."""
         ...
 
+    def observe_likelihood(self, w_avg: float) -> None:
+        """The mean unnormalised sensor factor of an update (an adaptive weighting follows it)."""
+        ...
+
+    def counts(self) -> dict[str, int]:
+        """Event counts to report with the run (e.g. updates that drew proposed particles)."""
+        ...
+
     def predict(
         self, poses: np.ndarray, weights: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -110,6 +118,12 @@ class PriorWeights:
 
     def injection_weights(self, poses: np.ndarray) -> np.ndarray:
         return np.ones(len(poses))
+
+    def observe_likelihood(self, w_avg: float) -> None:
+        """amcl's weighting does not adapt."""
+
+    def counts(self) -> dict[str, int]:
+        return {}
 
     def predict(
         self, poses: np.ndarray, weights: np.ndarray, rng: np.random.Generator

@@ -16,7 +16,10 @@ Injector = Callable[[int], tuple[np.ndarray, np.ndarray]]
 
 
 class Resampler(Protocol):
-    """Draws a new particle set; None when it decides not to resample."""
+    """Draws a new particle set; None when it decides not to resample. `injected` counts the
+    injected draws so far."""
+
+    injected: int
 
     def resample(
         self,
@@ -47,6 +50,7 @@ class KldResampler:
         self.min_particles, self.max_particles = min_particles, max_particles
         self.kld_err, self.kld_z, self.selective = kld_err, kld_z, selective
         self._bin_occupied = np.zeros(int(np.prod(dims[2:])), dtype=np.uint8)
+        self.injected = 0
 
     def resample(
         self,
@@ -84,4 +88,6 @@ class KldResampler:
             out,
             out_weights,
         )
+        if w_diff > 0.0:
+            self.injected += int(np.count_nonzero(u_inject[:count] < w_diff))
         return np.ascontiguousarray(out[:count]), out_weights[:count] / out_weights[:count].sum()

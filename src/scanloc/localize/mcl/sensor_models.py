@@ -40,6 +40,7 @@ from scanloc.localize.likelihood_field_prob import (
     prob_weights,
     select_beams_prob,
 )
+from scanloc.pose import wrap_angle
 from scanloc.sensor.laser import LaserSpec
 from scanloc.world.occupancy_grid import OccupancyGrid
 
@@ -69,15 +70,23 @@ class LaserParams:
 @dataclass(frozen=True)
 class LaserGeometry:
     """Beam bearings and the range limits amcl applies: the scanner's, narrowed by the
-    config's `laser_min_range` / `laser_max_range` where those are > 0."""
+    config's `laser_min_range` / `laser_max_range` where those are > 0; and the laser's
+    `mount` (x, y, θ) in the robot base frame, which ROS amcl reads from tf: every beam is
+    cast from base ⊕ mount."""
 
     angles: np.ndarray
     range_min: float
     range_max: float
     max_beams: int
+    mount: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @classmethod
-    def of(cls, spec: LaserSpec, params: LaserParams) -> LaserGeometry:
+    def of(
+        cls,
+        spec: LaserSpec,
+        params: LaserParams,
+        mount: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> LaserGeometry:
         p = params
         range_min = (
             max(spec.range_min, p.laser_min_range) if p.laser_min_range > 0 else spec.range_min
@@ -85,7 +94,27 @@ class LaserGeometry:
         range_max = (
             min(spec.range_max, p.laser_max_range) if p.laser_max_range > 0 else spec.range_max
         )
-        return cls(spec.beam_angles(), range_min, range_max, p.laser_max_beams)
+        mount = tuple(float(v) for v in mount)
+        if len(mount) != 3 or not all(np.isfinite(mount)):
+            raise ValueError(f"laser mount must be 3 finite numbers (x, y, θ), got {mount}")
+        return cls(spec.beam_angles(), range_min, range_max, p.laser_max_beams, mount)
+
+    def laser_poses(self, poses: np.ndarray) -> np.ndarray:
+        """The laser's poses for robot base poses (N, 3): base ⊕ mount (the poses themselves
+        when the mount is zero)."""
+        if not any(self.mount):
+            return poses
+        mx, my, mth = self.mount
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        return np.ascontiguousarray(
+            np.column_stack(
+                [
+                    poses[:, 0] + c * mx - s * my,
+                    poses[:, 1] + s * mx + c * my,
+                    wrap_angle(poses[:, 2] + mth),
+                ]
+            )
+        )
 
 
 @dataclass(frozen=True)
@@ -170,7 +199,7 @@ class LikelihoodFieldModel:
     def __call__(self, poses: np.ndarray, scan: np.ndarray, filter_converged: bool) -> np.ndarray:
         lz = self.laser
         r, b = select_beams(scan, lz.angles, lz.range_min, lz.range_max, lz.max_beams)
-        return beam_weights(self.field, poses, r, b)
+        return beam_weights(self.field, lz.laser_poses(poses), r, b)
 
 
 @dataclass(frozen=True)
@@ -205,7 +234,7 @@ class LikelihoodFieldProbModel:
         r, b = select_beams_prob(scan, lz.angles, lz.range_min, lz.range_max, lz.max_beams)
         return prob_weights(
             self.field,
-            poses,
+            lz.laser_poses(poses),
             r,
             b,
             p.do_beamskip,
@@ -250,7 +279,7 @@ class BeamModel:
     def __call__(self, poses: np.ndarray, scan: np.ndarray, filter_converged: bool) -> np.ndarray:
         lz = self.laser
         obs, b = select_beams_beam_model(scan, lz.angles, lz.range_min, lz.range_max, lz.max_beams)
-        return beam_model_weights(self.table, poses, obs, b, self.mixture)
+        return beam_model_weights(self.table, lz.laser_poses(poses), obs, b, self.mixture)
 
 
 # `laser_model_type` (ROS's name) -> the model's class.
