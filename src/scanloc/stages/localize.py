@@ -28,6 +28,7 @@ from scanloc.localize.kinds import LocalizeInputs, run_localizer
 from scanloc.progress import steps
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
+from scanloc.stages.group_files import load_group_files
 from scanloc.trajectory.format import Trajectory, load_trajectory
 
 
@@ -77,7 +78,7 @@ def select_odometry(traj: Trajectory, source: str, run_dir: Path) -> Trajectory:
     if traj.laser_odometry is None:
         raise FileNotFoundError(
             f"{run_dir}: odometry=laser asks for laser_odometry.npy, which this run lacks "
-            "(scanloc.real.laser_odometry writes it)"
+            "(scanloc.trajectory.laser_odometry makes it)"
         )
     return replace(traj, odometry=traj.laser_odometry)
 
@@ -123,6 +124,7 @@ def localize_all(cfg: DictConfig, stage: str, overrides: Sequence[str]) -> dict[
 def run_stage(cfg: DictConfig, stage: str, overrides: Sequence[str] | None = None) -> None:
     """The stage: localize, then write the timing figures. `overrides` are the run's
     command-line overrides (default: Hydra's record of them)."""
+    load_group_files(cfg)
     if overrides is None:
         overrides = list(HydraConfig.get().overrides.task)
     with timed_stage(f"{stage}_{cfg.trajectory}", cfg.timing_dir):
