@@ -5,26 +5,31 @@ are drawn uniformly over the map's free space (with the robot's clearance) and s
 same simulator and noise model as the `scans` stage. Epoch e's scans depend only on (seed, e):
 poses from the stream SeedSequence(seed, spawn_key=(e, 0)), the noise of each block of
 NOISE_BLOCK scans from SeedSequence(seed, spawn_key=(e, 1, block)), so the same params give
-the same bytes however the work is timed.
+the same bytes however the work is timed, and a training resumed at epoch e needs no state of
+the stream but e.
 
-A worker process (one numba thread, so that it leaves the cores to training) simulates epoch
-e + 1 into shared memory while the trainer reads epoch e from the other buffer: the training
-loop waits only if simulation is slower than an epoch of training.
+A worker process (spawned; one numba thread, so that it leaves the cores to training)
+simulates epoch e + 1 into shared memory while the trainer reads epoch e from the other buffer:
+the training loop waits only if simulation is slower than an epoch of training. Stopping is
+prompt: the worker dies on SIGINT and SIGTERM (the default action, whatever its parent
+inherited), and on the trainer's end of its pipe closing; `close` terminates it without waiting
+for an epoch in progress and unlinks the shared memory.
 """
 
 from __future__ import annotations
 
-import concurrent.futures
 import multiprocessing
+import signal
+import traceback
 from collections.abc import Mapping
 from dataclasses import dataclass
-from multiprocessing import shared_memory
+from multiprocessing import connection, shared_memory
 from typing import Any
 
 import numpy as np
 
 NOISE_BLOCK = 1024
-_worker: dict[str, Any] = {}
+WORKER_EXIT_S = 5.0  # how long `close` lets a terminated worker take to exit before a SIGKILL
 
 
 @dataclass(frozen=True)
@@ -47,7 +52,8 @@ class StreamSpec:
         return int(self.sensor["num_beams"])
 
 
-def _init_worker(spec: StreamSpec) -> None:
+def _make_simulator(spec: StreamSpec) -> tuple[Any, Any]:
+    """The worker's map and scan simulator, with numba on one thread."""
     import numba
 
     from scanloc.sensor.noise import noise_from_config
@@ -64,7 +70,7 @@ def _init_worker(spec: StreamSpec) -> None:
         str(sensor.get("mode", "exact")),
         bool(sensor.get("unknown_blocks", False)),
     )
-    _worker.update(spec=spec, grid=grid, simulator=simulator)
+    return grid, simulator
 
 
 def simulate_epoch(spec: StreamSpec, epoch: int, grid, simulator) -> tuple[np.ndarray, np.ndarray]:
@@ -82,18 +88,32 @@ def simulate_epoch(spec: StreamSpec, epoch: int, grid, simulator) -> tuple[np.nd
     return ranges, poses
 
 
-def _fill(epoch: int, ranges_name: str, poses_name: str) -> int:
-    spec = _worker["spec"]
-    ranges, poses = simulate_epoch(spec, epoch, _worker["grid"], _worker["simulator"])
-    r_shm = shared_memory.SharedMemory(name=ranges_name)
-    p_shm = shared_memory.SharedMemory(name=poses_name)
+def _serve(spec: StreamSpec, buffer_names: list[tuple[str, str]], conn: Any) -> None:
+    """The worker: for each epoch number received, simulate it into buffer epoch % 2 and reply
+    (epoch, None), or (epoch, traceback) when it fails, until terminated (ScanStream.close)
+    or the trainer's end of the pipe closes (the trainer died)."""
+    for stop in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(stop, signal.SIG_DFL)  # die at once, even inside numba code
+    buffers = [tuple(shared_memory.SharedMemory(name=n) for n in pair) for pair in buffer_names]
     try:
-        np.ndarray(ranges.shape, np.float32, buffer=r_shm.buf)[:] = ranges
-        np.ndarray(poses.shape, np.float64, buffer=p_shm.buf)[:] = poses
-    finally:
-        r_shm.close()
-        p_shm.close()
-    return epoch
+        grid, simulator = _make_simulator(spec)
+    except Exception:
+        conn.send((None, traceback.format_exc()))
+        return
+    try:
+        while True:
+            epoch = conn.recv()
+            try:
+                ranges, poses = simulate_epoch(spec, epoch, grid, simulator)
+                r_shm, p_shm = buffers[epoch % 2]
+                np.ndarray(ranges.shape, np.float32, buffer=r_shm.buf)[:] = ranges
+                np.ndarray(poses.shape, np.float64, buffer=p_shm.buf)[:] = poses
+                reply = (epoch, None)
+            except Exception:
+                reply = (epoch, traceback.format_exc())
+            conn.send(reply)
+    except (EOFError, BrokenPipeError):
+        return  # the trainer is gone
 
 
 class ScanStream:
@@ -101,38 +121,63 @@ class ScanStream:
 
     `epoch(e)` returns (ranges, poses) of epoch e (copied out of shared memory) and starts
     simulating epoch e + 1 into the other buffer. Epochs are best asked for in order: any other
-    is simulated on demand.
+    is simulated on demand. The worker handles one request at a time, in order.
     """
 
     def __init__(self, spec: StreamSpec) -> None:
         self.spec = spec
         n, b = spec.scans_per_epoch, spec.num_beams
-        self._buffers = [
-            (
-                shared_memory.SharedMemory(create=True, size=n * b * 4),
-                shared_memory.SharedMemory(create=True, size=n * 3 * 8),
+        self._buffers: list[tuple[shared_memory.SharedMemory, ...]] = []
+        self._pending: list[int] = []  # epochs requested from the worker, not yet answered
+        try:
+            for _ in range(2):
+                self._buffers.append(
+                    (
+                        shared_memory.SharedMemory(create=True, size=n * b * 4),
+                        shared_memory.SharedMemory(create=True, size=n * 3 * 8),
+                    )
+                )
+            context = multiprocessing.get_context("spawn")
+            self._conn, worker_end = context.Pipe()
+            names = [(r.name, p.name) for r, p in self._buffers]
+            self._worker = context.Process(
+                target=_serve,
+                args=(spec, names, worker_end),
+                name="scanloc-scan-stream",
+                daemon=True,
             )
-            for _ in range(2)
-        ]
-        self._pool = concurrent.futures.ProcessPoolExecutor(
-            max_workers=1,
-            mp_context=multiprocessing.get_context("spawn"),
-            initializer=_init_worker,
-            initargs=(spec,),
-        )
-        self._pending: dict[int, concurrent.futures.Future] = {}
+            self._worker.start()
+            worker_end.close()
+        except BaseException:
+            self._unlink()
+            raise
 
-    def _submit(self, epoch: int) -> None:
-        r, p = self._buffers[epoch % 2]
-        self._pending[epoch] = self._pool.submit(_fill, epoch, r.name, p.name)
+    def _request(self, epoch: int) -> None:
+        self._conn.send(epoch)
+        self._pending.append(epoch)
+
+    def _receive(self) -> int:
+        """Wait for the worker's next answer (or its death) and return the epoch it finished."""
+        ready = connection.wait([self._conn, self._worker.sentinel])
+        if self._conn not in ready:
+            self._worker.join(WORKER_EXIT_S)  # its exit code
+            raise RuntimeError(
+                f"the scan simulation worker stopped (exit code {self._worker.exitcode}) "
+                f"while simulating epoch {self._pending[0]} of {self.spec.map_yaml}"
+            )
+        epoch, error = self._conn.recv()
+        if error is not None:
+            what = "starting" if epoch is None else f"simulating epoch {epoch}"
+            raise RuntimeError(f"the scan simulation worker failed {what}:\n{error}")
+        self._pending.remove(epoch)
+        return epoch
 
     def epoch(self, epoch: int) -> tuple[np.ndarray, np.ndarray]:
-        for other in [e for e in self._pending if e != epoch]:  # asked out of order
-            self._pending.pop(other).result()
         if epoch not in self._pending:
-            self._submit(epoch)
-        self._pending.pop(epoch).result()
-        self._submit(epoch + 1)
+            self._request(epoch)
+        while self._receive() != epoch:  # epochs asked for before, out of order: dropped
+            pass
+        self._request(epoch + 1)
         r, p = self._buffers[epoch % 2]
         n, b = self.spec.scans_per_epoch, self.spec.num_beams
         ranges = np.ndarray((n, b), np.float32, buffer=r.buf).copy()
@@ -140,13 +185,23 @@ class ScanStream:
         return ranges, poses
 
     def close(self) -> None:
-        for future in self._pending.values():
-            future.cancel()
-        self._pool.shutdown(wait=True, cancel_futures=True)
-        for r, p in self._buffers:
-            for shm in (r, p):
-                shm.close()
-                shm.unlink()
+        """Stop the worker without waiting for an epoch in progress; free the shared memory."""
+        try:
+            if self._worker.is_alive():
+                self._worker.terminate()
+                self._worker.join(WORKER_EXIT_S)
+            if self._worker.is_alive():
+                self._worker.kill()
+                self._worker.join()
+            self._conn.close()
+        finally:
+            self._unlink()
+
+    def _unlink(self) -> None:
+        for shm in (shm for pair in self._buffers for shm in pair):
+            shm.close()
+            shm.unlink()
+        self._buffers = []
 
     def __enter__(self) -> ScanStream:
         return self

@@ -8,8 +8,19 @@ stage dataset's validation split): the top-1 hypothesis' errors and the top-K re
 of scans whose truth is within 0.5 m and 10° of one of the K best hypotheses).
 
 `fit_scanlocnet` writes out_dir/model.pt (the network's config, the map's grid included, and
-its weights), history.csv (one row per epoch) and metrics.json (deterministic figures only);
-it returns those metrics plus the machine-dependent epoch_s and device.
+its weights), history.csv (one row per epoch) and metrics.json (deterministic figures only),
+all at once (the folder appears complete or not at all); it returns those metrics plus the
+machine-dependent epoch_s and device.
+
+Stopping and resuming, as the paper's training (scanloc.models.training): every epoch ends with
+checkpoint_dir/<key>/last.ckpt (written atomically), where <key> hashes what determines the
+result (the configuration, the map's and the validation scans' bytes, the code). It holds the
+weights, AdamW's and the one-cycle schedule's state, the history and the RNG states of torch,
+numpy and Python; the scan stream needs no state but the epoch (its scans and their order
+derive from (seed, epoch)). A run that finds last.ckpt under its key resumes after that epoch
+and ends with the bytes of an uninterrupted run. SIGINT or SIGTERM (Ctrl-C, `kill`, also where
+the process inherited them ignored) raise TrainingStopped in the main thread within moments:
+the stream's worker dies with them, nothing is written to out_dir, and the caller says so.
 """
 
 from __future__ import annotations
@@ -29,10 +40,19 @@ from torch import Tensor
 from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.data.scan_stream import ScanStream, StreamSpec
 from scanloc.hardware import training_device
-from scanloc.io import atomic_path, write_json
+from scanloc.io import atomic_dir, atomic_path, write_json
 from scanloc.models.model_files import build_model, count_parameters, save_model
 from scanloc.models.pose_grid import PoseGrid
 from scanloc.models.scanlocnet import ScanLocNet, top_k
+from scanloc.models.scanlocnet_resume import (
+    EpochCheckpoint,
+    TrainingStopped,
+    restore_rng_states,
+    rng_states,
+    run_dir,
+    run_key,
+    stop_on_signals,
+)
 from scanloc.models.trainer_setup import keep_freed_memory, trainer_arguments, uses_cuda
 from scanloc.models.training import print_epoch_line
 from scanloc.pose import recall_within
@@ -169,7 +189,23 @@ class ScanLocModule(L.LightningModule):
         row["lr"] = float(self.lr_schedulers().get_last_lr()[0])
         self.history.append(row)
         self.model.train()
+
+    def print_epoch(self) -> None:
+        """The epoch line, printed once the epoch's checkpoint is saved (EpochCheckpoint)."""
         print_epoch_line("scanlocnet epoch", EPOCH_KEYS, self)
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint["scanloc"] = {
+            "history": list(self.history),
+            "epoch_seconds": list(self.epoch_seconds),
+            "rng": rng_states(),
+        }
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        state = checkpoint["scanloc"]
+        self.history = list(state["history"])
+        self.epoch_seconds = list(state["epoch_seconds"])
+        restore_rng_states(state["rng"])
 
     @torch.no_grad()
     def evaluate(self) -> dict[str, float]:
@@ -229,6 +265,24 @@ def write_history(path: Path, history: Sequence[Mapping[str, float]]) -> None:
         tmp.write_text("\n".join(lines) + "\n")
 
 
+def run_metrics(
+    module: ScanLocModule, scans_per_epoch: int, batch_size: int, precision: str
+) -> dict[str, Any]:
+    """metrics.json: the last epoch's figures and the run's sizes (deterministic only)."""
+    history, grid = module.history, module.model.grid
+    metrics: dict[str, Any] = {k: v for k, v in history[-1].items() if k not in ("epoch", "lr")}
+    return metrics | {
+        "epochs": len(history),
+        "scans_per_epoch": scans_per_epoch,
+        "samples_seen": len(history) * (scans_per_epoch // batch_size) * batch_size,
+        "val_scans": len(module.val_poses),
+        "cells": grid.num_cells,
+        "heading_bins": grid.heading_bins,
+        "params": count_parameters(module.model),
+        "precision": precision,
+    }
+
+
 def fit_scanlocnet(
     *,
     model_cfg: Mapping[str, Any],
@@ -243,9 +297,12 @@ def fit_scanlocnet(
     pct_start: float,
     trainer_cfg: Mapping[str, Any] | None,
     max_val: int | None = None,
+    checkpoint_dir: Path | None = None,
 ) -> dict[str, Any]:
     """Train ScanLocNet for `grid` on the stream and validate on `val_dataset`'s validation
-    split (see the module docstring). Returns the metrics."""
+    split, resuming from checkpoint_dir/<key>/last.ckpt where there is one (see the module
+    docstring; checkpoint_dir None: no checkpoints kept). Returns the metrics; raises
+    TrainingStopped on SIGINT or SIGTERM."""
     if epochs < 1 or batch_size < 2 or stream.scans_per_epoch < batch_size:
         raise ValueError(
             f"need epochs >= 1, batch_size >= 2 and scans_per_epoch >= batch_size, got {epochs}, "
@@ -263,42 +320,58 @@ def fit_scanlocnet(
     cfg = dict(model_cfg) | {"grid": grid.to_dict(), "num_beams": stream.num_beams}
     cfg.setdefault("range_max", float(stream.sensor["range_max"]))
     kwargs = trainer_arguments(trainer_cfg)
-    keep_freed_memory()
-    L.seed_everything(stream.seed, workers=True, verbose=False)
-    model = build_model(cfg)
-    steps_per_epoch = stream.scans_per_epoch // batch_size
-    module = ScanLocModule(
-        model, lr, weight_decay, epochs * steps_per_epoch, pct_start, val_ranges, val_poses
-    )
-    trainer = L.Trainer(
-        max_epochs=epochs,
-        logger=False,
-        enable_checkpointing=False,
-        num_sanity_val_steps=0,
-        limit_val_batches=0,
-        enable_progress_bar=interactive(),
-        enable_model_summary=False,
-        **kwargs,
-    )
-    with ScanStream(stream) as scans:
-        trainer.fit(module, train_dataloaders=_Epochs(scans, grid, batch_size, stream.seed))
-    last = module.history[-1]
-    metrics: dict[str, Any] = {k: v for k, v in last.items() if k not in ("epoch", "lr")}
-    metrics |= {
-        "epochs": len(module.history),
-        "scans_per_epoch": stream.scans_per_epoch,
-        "samples_seen": len(module.history) * steps_per_epoch * batch_size,
-        "val_scans": len(val_poses),
-        "cells": grid.num_cells,
-        "heading_bins": grid.heading_bins,
-        "params": count_parameters(model),
-        "precision": kwargs["precision"],
+    config = {
+        "model_cfg": cfg,
+        "epochs": epochs,
+        "batch_size": batch_size,
+        "lr": lr,
+        "weight_decay": weight_decay,
+        "pct_start": pct_start,
+        "trainer_cfg": dict(trainer_cfg or {}),
+        "precision": kwargs["precision"],  # "auto" resolved on this machine
+        "max_val": max_val,
     }
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    save_model(out_dir / "model.pt", cfg, model.state_dict())
-    write_history(out_dir / "history.csv", module.history)
-    write_json(out_dir / "metrics.json", metrics)
+    key = "" if checkpoint_dir is None else run_key(config, stream, Path(val_dataset))
+    saver: EpochCheckpoint | None = None
+    try:
+        with stop_on_signals(), run_dir(checkpoint_dir, key) as folder:
+            keep_freed_memory()
+            L.seed_everything(stream.seed, workers=True, verbose=False)
+            model = build_model(cfg)
+            steps_per_epoch = stream.scans_per_epoch // batch_size
+            module = ScanLocModule(
+                model, lr, weight_decay, epochs * steps_per_epoch, pct_start, val_ranges, val_poses
+            )
+            saver = EpochCheckpoint(folder / "last.ckpt", module.print_epoch)
+            trainer = L.Trainer(
+                max_epochs=epochs,
+                logger=False,
+                callbacks=[saver],
+                default_root_dir=folder,
+                num_sanity_val_steps=0,
+                limit_val_batches=0,
+                enable_progress_bar=interactive(),
+                enable_model_summary=False,
+                **kwargs,
+            )
+            resume = saver.path if saver.path.is_file() else None
+            with ScanStream(stream) as scans:
+                batches = _Epochs(scans, grid, batch_size, stream.seed)
+                trainer.fit(module, train_dataloaders=batches, ckpt_path=resume, weights_only=True)
+            if len(module.history) != epochs:
+                raise RuntimeError(
+                    f"{saver.path}: holds {len(module.history)} epochs, expected {epochs}"
+                )
+            metrics = run_metrics(module, stream.scans_per_epoch, batch_size, kwargs["precision"])
+            with atomic_dir(out_dir) as tmp:
+                save_model(tmp / "model.pt", cfg, model.state_dict())
+                write_history(tmp / "history.csv", module.history)
+                write_json(tmp / "metrics.json", metrics)
+    except TrainingStopped as stop:
+        stop.epochs = epochs
+        if checkpoint_dir is not None and saver is not None and saver.path.is_file():
+            stop.checkpoint, stop.epochs_done = saver.path, saver.epochs_saved
+        raise
     metrics["epoch_s"] = round(statistics.median(module.epoch_seconds), 4)
     metrics["train_s"] = round(sum(module.epoch_seconds), 2)
     metrics["device"] = training_device(uses_cuda(str(kwargs["accelerator"])))

@@ -6,6 +6,25 @@ at one profile (`pipeline_sizes`). Sizes that are code, not config, come from th
 own them: the planning graph's node spacing (scanloc.trajectory.planning), the scans simulated
 at a time (scanloc.data.scan_dataset) and the scans decoded together (scanloc.models.pose_grid).
 What the map's content must be is checked in scanloc.world.map_checks.
+
+ScanLocNet (train_scanlocnet) is the one stage whose cost grows with the map's free area: its
+pose grid has one cell per `grid.cell_size` square of free space (x heading bins), its cell
+head one logit per cell, and its validation decodes hypotheses over the whole grid.
+Measured (2 CPU cores, float32, the laptop network, batch 256, 667 beams; a training step at
+250, 1000 and 4000 cells, 3 steps each, on a machine shared with other jobs): a step took
+1.32, 1.35 and 1.43 s, +0.03 ms per cell (the 512 x cells cell head is a small part of it),
+and the peak RSS grew from 601 to 609 and 637 MB: ~10 KB per cell, inside the memory estimate
+below (the cell head with Adam, 8 KB per cell, and the decoded logits of DECODE_BATCH scans,
+74 KB per cell with 36 bins). The epoch time grows with the validation's decoding over the
+grid: the laptop runs took 15 s per epoch on sparse_obstacles (~200 cells) and 41 s on the
+50 x 25 m rooms map (1250 cells), with 25000 training and 2000 validation scans per epoch,
+which fit
+
+    epoch_s = scans_per_epoch x TRAIN_S_PER_SCAN + val_scans x cells x DECODE_S_PER_SCAN_CELL
+
+(0.4 ms and 12.4 us): linear in the cells, +0.025 s per cell and epoch at the laptop profile,
+so a 5000 m² floor (~4000 cells of 1 m) needs ~110 s per epoch, 22 min for 12 epochs. The
+maps stage prints this estimate; a memory estimate over the budget fails it.
 """
 
 from __future__ import annotations
@@ -16,6 +35,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from hydra import compose
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig
@@ -25,6 +45,7 @@ from scanloc.localize.catalog import localizer_overrides
 from scanloc.models.pose_grid import DECODE_BATCH
 from scanloc.trajectory.planning import PLAN_RESOLUTION
 from scanloc.world.map_checks import MapCheckError
+from scanloc.world.occupancy_grid import OccupancyGrid
 
 
 class MapTooLargeError(MapCheckError):
@@ -43,6 +64,9 @@ CAST_BYTES_PER_READING = 12  # a cast range (float64) and its float32 reading
 # Training scans of one epoch: worker cast + noise (float64 x 2, float32 x 3) and its copy
 # into one of two shared buffers, the trainer's copy out (float32 each).
 STREAM_BYTES_PER_READING = 44
+# ScanLocNet's training time per epoch (module docstring: fitted to the laptop runs, 2 cores).
+TRAIN_S_PER_SCAN = 4.0e-4  # a training scan: trunk, both heads, AdamW (batch 256)
+DECODE_S_PER_SCAN_CELL = 1.24e-5  # a validation scan's decoding, per cell of the pose grid
 PROCESS_BYTES = 600 * 10**6  # Python, numpy, scipy, numba and torch in one stage process
 ADAM_COPIES = 4  # a trained parameter: value, gradient, two Adam moments (float32 each)
 
@@ -55,7 +79,8 @@ class PipelineSizes:
     num_beams: beams per scan (conf/sensor); scans_per_epoch: the learned model's fresh
     training scans per epoch (conf/scanlocnet.yaml training); pose_cell_size, heading_bins,
     features: its pose grid and the width of its cell head (grid, net); beam_lut: (cell size
-    in m, heading bins) of amcl's beam-model range table when some localizer uses it, else None.
+    in m, heading bins) of amcl's beam-model range table when some localizer uses it, else None;
+    epochs, val_scans: the learned model's epochs and validation scans (its training time).
     """
 
     datasets: Mapping[str, int]
@@ -65,6 +90,8 @@ class PipelineSizes:
     heading_bins: int = 36
     features: int = 512
     beam_lut: tuple[float, int] | None = None
+    epochs: int = 0
+    val_scans: int = 0
 
 
 @dataclass(frozen=True)
@@ -121,6 +148,28 @@ def format_bytes(n: float) -> str:
     return f"{n / 1e9:.2f} GB" if n >= 1e9 else f"{n / 1e6:.1f} MB"
 
 
+def pose_grid_cells(rows: int, cols: int, resolution: float, cell_size: float) -> int:
+    """ScanLocNet's pose-grid cells on a rows x cols map with every cell free (cell_size
+    rounded to whole map cells, as PoseGrid.from_map does): an upper bound."""
+    step = max(1, round(cell_size / resolution))
+    return math.ceil(rows / step) * math.ceil(cols / step)
+
+
+def free_pose_cells(grid: OccupancyGrid, sizes: PipelineSizes) -> int:
+    """The built map's pose-grid cells that hold a free map cell (PoseGrid.from_map also asks
+    for the robot's clearance: this is an upper bound)."""
+    step = max(1, round(sizes.pose_cell_size / grid.resolution))
+    rows, cols = np.nonzero(grid.free)
+    return len(np.unique((rows // step) * (grid.width // step + 1) + cols // step))
+
+
+def scanlocnet_training_seconds(sizes: PipelineSizes, cells: int) -> float:
+    """Estimated wall seconds of ScanLocNet's training at `sizes` on a pose grid of `cells`
+    (module docstring: the fit to the laptop runs on 2 CPU cores)."""
+    per_scan = sizes.scans_per_epoch * TRAIN_S_PER_SCAN
+    return sizes.epochs * (per_scan + sizes.val_scans * cells * DECODE_S_PER_SCAN_CELL)
+
+
 def estimate_memory(
     rows: int, cols: int, resolution: float, sizes: PipelineSizes
 ) -> MemoryEstimate:
@@ -134,7 +183,7 @@ def estimate_memory(
     sampler = cells * (LOAD_BYTES_PER_CELL + CLEARANCE_BYTES_PER_CELL + CAST_MAP_BYTES_PER_CELL)
     step = max(1, round(PLAN_RESOLUTION / resolution))
     pose_step = max(1, round(sizes.pose_cell_size / resolution))
-    pose_cells = math.ceil(rows / pose_step) * math.ceil(cols / pose_step)
+    pose_cells = pose_grid_cells(rows, cols, resolution, sizes.pose_cell_size)
     hypotheses = pose_cells * sizes.heading_bins
     parts = [
         MemoryPart("maps", f"{rows} x {cols} cells (image, cells)", cells * LOAD_BYTES_PER_CELL)
@@ -290,6 +339,8 @@ def pipeline_sizes(map_name: str, profile: str) -> PipelineSizes:
         pose_cell_size=float(net.grid.cell_size),
         heading_bins=int(net.grid.heading_bins),
         features=int(net.net.features),
+        epochs=int(net.training.epochs),
+        val_scans=int(val.dataset.num_samples),
         beam_lut=(
             (float(beam[0].beam_lut_resolution), int(beam[0].beam_lut_angles)) if beam else None
         ),

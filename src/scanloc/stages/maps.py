@@ -16,13 +16,16 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from scanloc.io import atomic_dir, write_json
+from scanloc.progress import duration
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.stages.budget import (
     check_memory,
     estimate_memory,
     format_bytes,
+    free_pose_cells,
     physical_memory,
     pipeline_sizes,
+    scanlocnet_training_seconds,
 )
 from scanloc.world.build import build_map, map_provenance, render_map_preview
 from scanloc.world.map_checks import (
@@ -63,7 +66,8 @@ def main(cfg: DictConfig) -> None:
     shares = cell_shares(grid)
     memory = (
         f"; estimated peak {format_bytes(estimate.need)} ({estimate.peak_stage}, profile "
-        f"{checks.profile}) of {format_bytes(physical_memory())}"
+        f"{checks.profile}) of {format_bytes(physical_memory())}; ScanLocNet's training "
+        f"~{duration(scanlocnet_training_seconds(sizes, free_pose_cells(grid, sizes)))}"
         if estimate is not None
         else ""
     )

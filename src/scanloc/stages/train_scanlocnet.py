@@ -1,8 +1,14 @@
 """`train_scanlocnet` stage (beyond the paper): the learned localizer with ranked hypotheses for
-one map, trained on scans simulated afresh every epoch (scanloc.models.scanlocnet_training)."""
+one map, trained on scans simulated afresh every epoch (scanloc.models.scanlocnet_training).
+
+Ctrl-C (SIGINT) or SIGTERM stops it within moments with one line on stderr and exit status
+128 + the signal's number, nothing written; the same command resumes after the last finished
+epoch from checkpoint_dir (outside the DVC output) and ends with an uninterrupted run's bytes.
+"""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from omegaconf import DictConfig
@@ -10,6 +16,7 @@ from omegaconf import DictConfig
 from scanloc.data.scan_stream import StreamSpec
 from scanloc.io import write_json
 from scanloc.models.pose_grid import PoseGrid
+from scanloc.models.scanlocnet_resume import TrainingStopped
 from scanloc.models.scanlocnet_training import fit_scanlocnet
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.world.map_server import load_map
@@ -33,19 +40,24 @@ def main(cfg: DictConfig) -> None:
             scans_per_epoch=int(run.scans_per_epoch),
             seed=int(run.seed),
         )
-        metrics = fit_scanlocnet(
-            model_cfg=to_dict(cfg.net),
-            grid=grid,
-            stream=stream,
-            val_dataset=Path(cfg.val_dataset),
-            out_dir=Path(cfg.out_dir),
-            epochs=int(run.epochs),
-            batch_size=int(run.batch_size),
-            lr=float(run.lr),
-            weight_decay=float(run.weight_decay),
-            pct_start=float(run.pct_start),
-            trainer_cfg=to_dict(cfg.trainer),
-        )
+        try:
+            metrics = fit_scanlocnet(
+                model_cfg=to_dict(cfg.net),
+                grid=grid,
+                stream=stream,
+                val_dataset=Path(cfg.val_dataset),
+                out_dir=Path(cfg.out_dir),
+                epochs=int(run.epochs),
+                batch_size=int(run.batch_size),
+                lr=float(run.lr),
+                weight_decay=float(run.weight_decay),
+                pct_start=float(run.pct_start),
+                trainer_cfg=to_dict(cfg.trainer),
+                checkpoint_dir=Path(cfg.checkpoint_dir),
+            )
+        except TrainingStopped as stop:
+            print(f"train_scanlocnet {cfg.map_name}: {stop}", file=sys.stderr)
+            sys.exit(128 + stop.signum)
         write_json(Path(cfg.metrics_path), metrics | {"map": cfg.map_name})
 
 
