@@ -221,9 +221,8 @@ def test_smoke_metrics_hold_every_contract_metric(smoke_repo: Path) -> None:
         kidnap = localization[f"{name}_kidnap"]
         for method in GLOBAL_LOCALIZERS:
             assert {"recovery_steps_1", "recovery_steps_max", "recovered"} <= set(kidnap[method])
-        assert {"val_top5_recall", "epoch_s"} <= set(
-            metrics[f"reports/metrics/scanlocnet_{name}.json"]
-        )
+        assert "val_top5_recall" in metrics[f"reports/metrics/scanlocnet_{name}.json"]
+        assert metrics[f"reports/timing/train_scanlocnet_{name}.json"]["epoch_s"] > 0
     if not REAL_LOG.is_file():
         return
     for run in ("real", "sim"):

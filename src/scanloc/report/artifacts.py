@@ -207,6 +207,10 @@ def scanlocnet_run(root: Path, map_name: str) -> tuple[dict | None, pd.DataFrame
     metrics_file = root / METRICS_DIR / f"scanlocnet_{map_name}.json"
     history_path = root / "models" / "scanlocnet" / map_name / "history.csv"
     metrics = read_json(metrics_file) if metrics_file.is_file() else None
+    timing = root / TIMING_DIR / f"train_scanlocnet_{map_name}.json"
+    if metrics is not None and timing.is_file():  # its machine-dependent figures (train_s)
+        figures = read_json(timing)
+        metrics |= {k: figures[k] for k in MACHINE_KEYS if k in figures}
     history = pd.read_csv(history_path) if history_path.is_file() else None
     return metrics, history
 

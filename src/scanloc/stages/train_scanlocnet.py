@@ -14,18 +14,21 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from scanloc.data.scan_stream import StreamSpec
+from scanloc.hardware import split_machine_figures
 from scanloc.io import write_json
 from scanloc.models.pose_grid import PoseGrid
 from scanloc.models.scanlocnet_resume import TrainingStopped
 from scanloc.models.scanlocnet_training import fit_scanlocnet
 from scanloc.stages._app import stage_main, timed_stage, to_dict
+from scanloc.stages.group_files import load_group_files
 from scanloc.world.map_server import load_map
 
 
 @stage_main("scanlocnet")
 def main(cfg: DictConfig) -> None:
+    load_group_files(cfg)
     run = cfg.training
-    with timed_stage(f"train_scanlocnet_{cfg.map_name}", cfg.timing_dir):
+    with timed_stage(f"train_scanlocnet_{cfg.map_name}", cfg.timing_dir) as machine:
         grid = PoseGrid.from_map(
             load_map(cfg.map_yaml),
             float(cfg.grid.cell_size),
@@ -58,7 +61,9 @@ def main(cfg: DictConfig) -> None:
         except TrainingStopped as stop:
             print(f"train_scanlocnet {cfg.map_name}: {stop}", file=sys.stderr)
             sys.exit(128 + stop.signum)
-        write_json(Path(cfg.metrics_path), metrics | {"map": cfg.map_name})
+        kept, figures = split_machine_figures(metrics)
+        machine.update(figures)
+        write_json(Path(cfg.metrics_path), kept | {"map": cfg.map_name})
 
 
 if __name__ == "__main__":
