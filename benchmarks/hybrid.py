@@ -45,8 +45,8 @@ from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProp
 from scanloc.localize.learned_localizer import scan_hypotheses
 from scanloc.localize.mcl.config import MclConfig, build_filter
 from scanloc.localize.mcl.proposals import UniformProposal
-from scanloc.models.pose_grid import PoseGrid
 from scanloc.models.training import build_model
+from scanloc.scanlocnet.pose_grid import PoseGrid
 from scanloc.sensor.laser import LaserSpec
 
 ROOT = Path(__file__).resolve().parents[1]

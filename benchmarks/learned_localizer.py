@@ -1,7 +1,7 @@
 """Benchmark: localization accuracy against training wall time, scanloc's learned localizer
 (ScanLocNet) and the paper's 1D CNN, on the same data path and the same budget, in one run.
 
-Both train on the same fresh scans (scanloc.data.scan_stream: a new epoch simulated in the
+Both train on the same fresh scans (scanloc.scanlocnet.scan_stream: a new epoch simulated in the
 background each time, the pipeline's sensor and noise model) for `--budget` seconds of wall
 time each, one after the other on this machine's threads:
 - ScanLocNet (conf/scanlocnet.yaml's network): its loss, AdamW with a one-cycle schedule over
@@ -32,12 +32,12 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from amcl_every_scan import pipeline_run
-from scanloc.data.scan_stream import ScanStream, StreamSpec, simulate_epoch
 from scanloc.models.model_files import build_model, predict
-from scanloc.models.pose_grid import PoseGrid
-from scanloc.models.scanlocnet import suppress_duplicates, top_k
-from scanloc.models.scanlocnet_training import encode_targets, scanlocnet_loss
 from scanloc.pose import recall_within
+from scanloc.scanlocnet.model import suppress_duplicates, top_k
+from scanloc.scanlocnet.pose_grid import PoseGrid
+from scanloc.scanlocnet.scan_stream import ScanStream, StreamSpec, simulate_epoch
+from scanloc.scanlocnet.training import encode_targets, scanlocnet_loss
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import ScanSimulator, laser_spec_from_config
 from scanloc.world.map_server import save_map

@@ -19,8 +19,8 @@ from scanloc.localize.hybrid import _mixture_density as mixture_density
 from scanloc.localize.mcl.config import build_filter
 from scanloc.localize.mcl.filter import ParticleFilter, run_filter
 from scanloc.localize.mcl.proposals import UniformProposal
-from scanloc.models.scanlocnet import Hypotheses
 from scanloc.pose import wrap_angle
+from scanloc.scanlocnet.model import Hypotheses
 from scanloc.trajectory.drive import drive_trajectory
 from test_amcl import SPEC, amcl_filter, ros, small_map, ug01_scans
 

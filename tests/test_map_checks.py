@@ -19,7 +19,7 @@ from PIL import Image
 
 from scanloc.data.scan_dataset import generate_scan_dataset, load_scan_dataset
 from scanloc.localize.mcl.proposals import UniformProposal
-from scanloc.models.pose_grid import DECODE_BATCH
+from scanloc.scanlocnet.pose_grid import DECODE_BATCH
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages.budget import (
     PROCESS_BYTES,

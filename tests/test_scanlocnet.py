@@ -14,11 +14,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from scanloc.data.scan_dataset import generate_scan_dataset
-from scanloc.data.scan_stream import ScanStream, StreamSpec, simulate_epoch
-from scanloc.models.pose_grid import PoseGrid
-from scanloc.models.scanlocnet import ScanLocNet, suppress_duplicates, top_k
-from scanloc.models.scanlocnet_training import fit_scanlocnet
 from scanloc.models.training import load_model
+from scanloc.scanlocnet.model import ScanLocNet, suppress_duplicates, top_k
+from scanloc.scanlocnet.pose_grid import PoseGrid
+from scanloc.scanlocnet.scan_stream import ScanStream, StreamSpec, simulate_epoch
+from scanloc.scanlocnet.training import fit_scanlocnet
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import ScanSimulator, laser_spec_from_config
 from scanloc.world.build import build_map
@@ -37,7 +37,7 @@ SENSOR = {
 }
 NOISE = {"kind": "ug01", "near_sigma_m": 0.03, "knee_m": 1.0, "relative_sigma": 0.03}
 SMALL_NET = {
-    "_target_": "scanloc.models.scanlocnet.ScanLocNet",
+    "_target_": "scanloc.scanlocnet.model.ScanLocNet",
     "channels": [8, 16, 16],
     "kernels": [5, 3, 3],
     "features": 64,
@@ -160,7 +160,7 @@ def test_top_k_equals_brute_force(grid: OccupancyGrid, net: ScanLocNet, chunk: i
 
 
 def test_duplicate_suppression_merges_near_hypotheses() -> None:
-    from scanloc.models.scanlocnet import Hypotheses
+    from scanloc.scanlocnet.model import Hypotheses
 
     poses = np.array([[[1.0, 1.0, 0.0], [1.2, 1.0, 0.05], [3.0, 1.0, 0.0], [1.0, 1.0, 2.0]]])
     hyp = Hypotheses(poses, np.array([[0.4, 0.3, 0.2, 0.1]]), np.ones((1, 4, 3)))
@@ -194,7 +194,7 @@ def plain_suppression(poses, weights, distance, angle, k):
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10_000), total=st.integers(1, 30), k=st.integers(1, 12))
 def test_duplicate_suppression_equals_a_plain_greedy_pass(seed: int, total: int, k: int) -> None:
-    from scanloc.models.scanlocnet import Hypotheses
+    from scanloc.scanlocnet.model import Hypotheses
 
     rng = np.random.default_rng(seed)
     poses = np.concatenate(

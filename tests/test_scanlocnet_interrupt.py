@@ -1,6 +1,6 @@
 """Stopping ScanLocNet's training and resuming it: a stop signal ends the training at once with
 nothing written, and the re-run resumes from the last finished epoch to the bytes of an
-uninterrupted run (scanloc.models.scanlocnet_resume, the stage's exit status and message)."""
+uninterrupted run (scanloc.scanlocnet.resume, the stage's exit status and message)."""
 
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ import pytest
 from omegaconf import OmegaConf
 
 from scanloc.data.scan_dataset import generate_scan_dataset
-from scanloc.data.scan_stream import StreamSpec
-from scanloc.models.pose_grid import PoseGrid
-from scanloc.models.scanlocnet_resume import TrainingStopped
-from scanloc.models.scanlocnet_training import ScanLocModule, fit_scanlocnet
+from scanloc.scanlocnet.pose_grid import PoseGrid
+from scanloc.scanlocnet.resume import TrainingStopped
+from scanloc.scanlocnet.scan_stream import StreamSpec
+from scanloc.scanlocnet.training import ScanLocModule, fit_scanlocnet
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.world.map_server import save_map
 from scanloc.world.occupancy_grid import OccupancyGrid
@@ -49,7 +49,7 @@ def inputs(tmp_path_factory: pytest.TempPathFactory, room: OccupancyGrid) -> dic
 
 def _fit(inputs: dict[str, Path], room: OccupancyGrid, out_dir: Path, checkpoints: Path) -> dict:
     return fit_scanlocnet(
-        model_cfg={"_target_": "scanloc.models.scanlocnet.ScanLocNet"} | TINY_NET,
+        model_cfg={"_target_": "scanloc.scanlocnet.model.ScanLocNet"} | TINY_NET,
         grid=PoseGrid.from_map(room, 1.0, 12, 0.15),
         stream=StreamSpec(str(inputs["map"]), SENSOR, NOISE, 0.15, 256, 3),
         val_dataset=inputs["val"],

@@ -1,7 +1,7 @@
 """scanloc's learned localizer along a trajectory: ranked hypotheses from each scan alone.
 
 Each scan is localized on its own, as the paper's CNNs are, but by ScanLocNet
-(scanloc.models.scanlocnet): the exact top `k_raw` (cell, heading-bin) hypotheses, then
+(scanloc.scanlocnet.model): the exact top `k_raw` (cell, heading-bin) hypotheses, then
 non-maximum suppression (a hypothesis within `nms_distance` m and `nms_angle_deg` of a better
 one of the same scan adds its weight to it and is dropped), keeping the `k` best. The per-step
 table holds the best hypothesis with its predicted (diagonal) covariance; all k go to the
@@ -29,8 +29,8 @@ def scan_hypotheses(
 ):
     """(model, per-scan hypotheses function, setup seconds): the function maps one scan
     (beams,) to Hypotheses of one row (torch is imported here, not at module load)."""
-    from scanloc.models.scanlocnet import suppress_duplicates, top_k
     from scanloc.models.training import load_model
+    from scanloc.scanlocnet.model import suppress_duplicates, top_k
 
     start = time.perf_counter()
     model = load_model(model_path)

@@ -4,7 +4,7 @@ the map's size before it is built, and the check that fails a map too large for 
 The maps stage runs it (scanloc.stages.maps) with the sizes the later stages' own configs give
 at one profile (`pipeline_sizes`). Sizes that are code, not config, come from the modules that
 own them: the planning graph's node spacing (scanloc.trajectory.planning), the scans simulated
-at a time (scanloc.data.scan_dataset) and the scans decoded together (scanloc.models.pose_grid).
+at a time (scanloc.data.scan_dataset) and the scans decoded together (scanloc.scanlocnet.pose_grid).
 What the map's content must be is checked in scanloc.world.map_checks.
 
 ScanLocNet (train_scanlocnet) is the one stage whose cost grows with the map's free area: its
@@ -42,7 +42,7 @@ from omegaconf import DictConfig
 
 from scanloc.data.scan_dataset import SIM_CHUNK
 from scanloc.localize.catalog import localizer_overrides
-from scanloc.models.pose_grid import DECODE_BATCH
+from scanloc.scanlocnet.pose_grid import DECODE_BATCH
 from scanloc.trajectory.planning import PLAN_RESOLUTION
 from scanloc.world.map_checks import MapCheckError
 from scanloc.world.occupancy_grid import OccupancyGrid

@@ -1,5 +1,5 @@
 """`train_scanlocnet` stage (beyond the paper): the learned localizer with ranked hypotheses for
-one map, trained on scans simulated afresh every epoch (scanloc.models.scanlocnet_training).
+one map, trained on scans simulated afresh every epoch (scanloc.scanlocnet.training).
 
 Ctrl-C (SIGINT) or SIGTERM stops it within moments with one line on stderr and exit status
 128 + the signal's number, nothing written; the same command resumes after the last finished
@@ -13,12 +13,12 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from scanloc.data.scan_stream import StreamSpec
 from scanloc.hardware import split_machine_figures
 from scanloc.io import write_json
-from scanloc.models.pose_grid import PoseGrid
-from scanloc.models.scanlocnet_resume import TrainingStopped
-from scanloc.models.scanlocnet_training import fit_scanlocnet
+from scanloc.scanlocnet.pose_grid import PoseGrid
+from scanloc.scanlocnet.resume import TrainingStopped
+from scanloc.scanlocnet.scan_stream import StreamSpec
+from scanloc.scanlocnet.training import fit_scanlocnet
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.stages.group_files import load_group_files
 from scanloc.world.map_server import load_map

@@ -69,7 +69,7 @@ def build(ctx: ReportContext, spec: SectionSpec) -> list[Section]:
         Para(
             "Beyond the paper. The paper's networks regress one pose per scan and, at this "
             "profile's scale, stay metres off (Table 2). scanloc's own learned localizer "
-            "(scanloc.models.scanlocnet) classifies instead: cells of about 1 m over the map's "
+            "(scanloc.scanlocnet.model) classifies instead: cells of about 1 m over the map's "
             "free space and heading bins, p(cell, bin | scan) = p(cell | scan) · p(bin | cell, "
             "scan), each hypothesis refined by in-cell and in-bin offsets with predicted standard "
             "deviations. It trains on scans simulated afresh every epoch (same sensor and noise "

@@ -31,8 +31,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from scanloc.models.pose_grid import DECODE_BATCH, PoseGrid
 from scanloc.pose import wrap_pi
+from scanloc.scanlocnet.pose_grid import DECODE_BATCH, PoseGrid
 
 LOG_STD_RANGE = (-6.0, 2.0)  # clamp of the predicted log standard deviations (in offset units)
 

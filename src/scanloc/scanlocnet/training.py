@@ -38,13 +38,16 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from scanloc.data.scan_dataset import load_scan_dataset
-from scanloc.data.scan_stream import ScanStream, StreamSpec
 from scanloc.hardware import training_device
 from scanloc.io import atomic_dir, atomic_path, write_json
 from scanloc.models.model_files import build_model, count_parameters, save_model
-from scanloc.models.pose_grid import PoseGrid
-from scanloc.models.scanlocnet import ScanLocNet, top_k
-from scanloc.models.scanlocnet_resume import (
+from scanloc.models.trainer_setup import keep_freed_memory, trainer_arguments, uses_cuda
+from scanloc.models.training import print_epoch_line
+from scanloc.pose import recall_within
+from scanloc.progress import interactive
+from scanloc.scanlocnet.model import ScanLocNet, top_k
+from scanloc.scanlocnet.pose_grid import PoseGrid
+from scanloc.scanlocnet.resume import (
     EpochCheckpoint,
     TrainingStopped,
     restore_rng_states,
@@ -53,10 +56,7 @@ from scanloc.models.scanlocnet_resume import (
     run_key,
     stop_on_signals,
 )
-from scanloc.models.trainer_setup import keep_freed_memory, trainer_arguments, uses_cuda
-from scanloc.models.training import print_epoch_line
-from scanloc.pose import recall_within
-from scanloc.progress import interactive
+from scanloc.scanlocnet.scan_stream import ScanStream, StreamSpec
 
 RECALL_K = (1, 5, 20)
 # The epoch line's columns (scanloc.progress.EpochLine) and their formats.

@@ -23,8 +23,8 @@ import numpy as np
 import torch
 from lightning.pytorch.callbacks import Checkpoint
 
-from scanloc.data.scan_stream import StreamSpec
 from scanloc.io import atomic_path
+from scanloc.scanlocnet.scan_stream import StreamSpec
 from scanloc.world.map_server import read_map_metadata
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
