@@ -20,6 +20,8 @@ import yaml
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from scanloc.localize.catalog import localizer_overrides
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = REPO_ROOT / "conf"
 STAGES_DIR = REPO_ROOT / "src" / "scanloc" / "stages"
@@ -52,7 +54,7 @@ GROUP_HOST = {
     "experiment": "train",
     "model": "train",
     "trainer": "train",
-    "localizer": ("localize", "localizer@localizers.amcl"),
+    "localizer": "localize",
     "run": "trajectory",
     "profile": "report",
 }
@@ -138,6 +140,17 @@ def substitute(node: Any, context: dict[str, Any]) -> Any:
     return node
 
 
+EXAMPLE_BAGS = {
+    "robot": {
+        "bag": "bags/robot",
+        "map": "data/maps/sparse_obstacles/map.yaml",
+        "map_depends": "data/maps/sparse_obstacles",
+        "sensor": "urg04lx",
+        "overrides": "truth_topic=/ground_truth",
+    }
+}
+
+
 def dvc_stages(profile: str, trainer: str) -> dict[str, dict[str, Any]]:
     """Every stage of dvc.yaml with foreach and matrix expanded as DVC does it, for the maps of
     params.yaml and the given profile and trainer (a foreach or matrix dimension over a dict
@@ -149,6 +162,9 @@ def dvc_stages(profile: str, trainer: str) -> dict[str, dict[str, Any]]:
         "trainer": trainer,
         "maps": params["maps"],
         "real_logs": params["real_logs"],
+        # No bag ships with the repository: an example entry, so that the bag stages' commands
+        # and params are checked like every other stage's.
+        "bags": params.get("bags") or EXAMPLE_BAGS,
     }
 
     def values(entries: Any) -> Any:
@@ -499,17 +515,10 @@ def localizer_inputs(localizer: dict[str, Any]) -> list[str]:
 
 
 def config_inputs(cfg: dict[str, Any]) -> list[str]:
-    """Paths a stage reads, by the config keys the stage apps use. timing_dir is not one: every
-    stage writes its wall time there, and the report lists those times without depending on
-    them (a wall time never repeats, so a dependency would rerun the report every time)."""
-    keys = (
-        "dataset_dir",
-        "trajectory_dir",
-        "truth",
-        "val_dataset",
-        "trajectory_root",
-        "localize_timing_dir",
-    )
+    """Paths a stage reads, by the config keys the stage apps use. The wall-time folders
+    (timing_dir, localize_timing_dir) are not: a wall time never repeats, so a dependency on one
+    would rerun its reader every time (test_wall_times_are_top_level_metrics_only)."""
+    keys = ("dataset_dir", "trajectory_dir", "truth", "val_dataset", "trajectory_root")
     paths = [cfg[k] for k in keys if k in cfg]
     paths += cfg.get("localize_roots", [])
     localizers = cfg.get("localizers") or {}
@@ -524,10 +533,11 @@ def config_inputs(cfg: dict[str, Any]) -> list[str]:
 
 
 def config_outputs(config_name: str, cfg: dict[str, Any]) -> list[str]:
-    """Paths a stage writes; the report stage writes two files into its out_dir."""
+    """Paths a stage writes; the report stage writes two files into its out_dir. Not the
+    wall-time files (timing_dir, timing_path): no stage declares those."""
     if config_name == "report":
         return [f"{cfg['out_dir']}/report.html", f"{cfg['out_dir']}/report.md"]
-    keys = ("out_dir", "out_path", "metrics_path", "table2_path", "table2_dir", "timing_path")
+    keys = ("out_dir", "out_path", "metrics_path", "table2_path", "table2_dir")
     return [cfg[k] for k in keys if k in cfg]
 
 
@@ -545,7 +555,11 @@ def test_dvc_declares_what_each_stage_reads_and_writes(profile: str, trainer: st
             for path in group_files(group, option):
                 if (REPO_ROOT / path).is_file():
                     assert path in declared, f"{name} reads {path} but dvc.yaml omits it"
-        cfg = resolved(config_name, overrides)
+        # the localize stages compose the localizers conf/localizer lists for them
+        listed = []
+        if config_name in ("localize", "localize_cnn"):
+            listed = localizer_overrides(config_name, CONF_DIR / "localizer")
+        cfg = resolved(config_name, (*overrides, *listed))
         deps = named(stage.get("deps", []))
         for path in config_inputs(cfg):
             assert inside(path, deps), f"{name} reads {path}, not under its deps {deps}"
@@ -554,11 +568,35 @@ def test_dvc_declares_what_each_stage_reads_and_writes(profile: str, trainer: st
             assert inside(path, written), f"{name} writes {path}, not under its outs {written}"
 
 
+def test_wall_times_are_top_level_metrics_only():
+    """Wall-clock files are shown by `dvc metrics show` (dvc.yaml's top-level `metrics`) but are
+    no stage's dependency or output, so dvc.lock never records a hash of them."""
+    spec = yaml.safe_load((REPO_ROOT / "dvc.yaml").read_text())
+    shown = spec.get("metrics", [])
+    params = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
+    for name, stage in dvc_stages(params["profile"], params["trainer"]).items():
+        cfg = resolved(*stage_command(stage))
+        timing = [cfg[k] for k in ("timing_dir", "localize_timing_dir", "timing_path") if k in cfg]
+        assert timing, f"{name}: writes no wall time (timing_dir)"
+        declared = [
+            *named(stage.get("deps", [])),
+            *named(stage.get("outs", [])),
+            *named(stage.get("metrics", [])),
+        ]
+        for path in timing:
+            assert inside(path, shown), f"{name}: {path} is not under dvc.yaml `metrics` {shown}"
+            clashes = [d for d in declared if inside(d, [path]) or inside(path, [d])]
+            assert not clashes, f"{name}: the wall-time path {path} is declared as {clashes}"
+
+
 def test_dvc_stage_list_is_the_contract():
     names = run_in_repo(["dvc", "stage", "list", "--name-only"]).split()
     assert len(names) == len(set(names))
     params = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
-    assert set(names) == set(dvc_stages(params["profile"], params["trainer"]))
+    expected = dvc_stages(params["profile"], params["trainer"])
+    if not params.get("bags"):  # the example bag of dvc_stages is not in params.yaml
+        expected = {n: s for n, s in expected.items() if not n.startswith("bag")}
+    assert set(names) == set(expected)
 
     def expansions(stage: str) -> set[str]:
         return {n.split("@", 1)[1] for n in names if n.startswith(f"{stage}@")}
@@ -586,13 +624,16 @@ def test_dvc_stage_list_is_the_contract():
     assert expansions("transfer") == {"scratch", "pretrained"}
     assert expansions("maps") == maps == expansions("valscans") == expansions("train_scanlocnet")
     assert expansions("scans") == set(DATASETS)
-    runs = {f"{m}-{r}" for m in maps for r in ("drive", "kidnap")}
-    assert expansions("trajectory") == runs == expansions("localize")
+    seeded = ("drive", "kidnap", "kidnap_s1", "kidnap_s2", "kidnap_s3", "kidnap_s4")
+    runs = {f"{m}-{r}" for m in maps for r in seeded}
+    assert expansions("trajectory") == runs | {f"{m}-tune_kidnap" for m in maps}
+    assert expansions("localize") == runs  # the tune run is localized by hand, when tuning
     assert expansions("localize_cnn") == {"drive", "kidnap"}
     logs = set(params["real_logs"])
     assert "intel" in logs  # the real-data evaluation runs by default on the intel log
     assert expansions("real") == logs == expansions("real_valscans") == expansions("real_train")
-    assert expansions("real_localize") == {f"{log}-{r}" for log in logs for r in ("real", "sim")}
+    runs = ("real", "sim", "kidnap")
+    assert expansions("real_localize") == {f"{log}-{r}" for log in logs for r in runs}
     for single in ("evaluate", "report"):
         assert single in names
     assert params["profile"] in PROFILES and params["trainer"] in TRAINERS

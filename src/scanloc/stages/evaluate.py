@@ -32,12 +32,21 @@ def pipeline_real_logs(params_path: Path = Path("params.yaml")) -> list[str]:
     return list(logs)
 
 
+def pipeline_bags(params_path: Path = Path("params.yaml")) -> list[str]:
+    """The bag names of params.yaml `bags` (none when the field is absent or empty)."""
+    bags = yaml.safe_load(params_path.read_text()).get("bags") or {}
+    if not isinstance(bags, dict):
+        raise ValueError(f"{params_path}: field 'bags': expected a mapping of bag entries")
+    return list(bags)
+
+
 @stage_main("evaluate")
 def main(cfg: DictConfig) -> None:
     with timed_stage("evaluate", cfg.timing_dir):
         maps, logs = pipeline_maps(), pipeline_real_logs()
         names = [f"{m}_{run}" for m in maps for run in cfg.runs]
         names += [f"{log}_{run}" for log in logs for run in cfg.real_runs]
+        names += [f"{bag}_real" for bag in pipeline_bags()]  # a bag is one real run
         metrics = evaluate_runs(
             names,
             Path(cfg.trajectory_root),
