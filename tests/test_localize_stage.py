@@ -113,23 +113,13 @@ def test_only_must_name_a_listed_localizer(
         localize(run_dir, monkeypatch, "only=amcl")
 
 
-def test_the_shipped_lists_are_the_pipelines_localizers() -> None:
-    """What evaluate and the report expect of each stage (the former hand-written lists)."""
+def test_the_shipped_lists_hold_what_the_evaluation_and_report_need() -> None:
+    """The localizers whose metrics the summary, the claims and the real-data section read must
+    be listed; any other listed localizer is simply one more row (one YAML file each)."""
     listed = stage_localizers("localize", CONF / "localizer")
-    expected = [
-        "amcl",
-        "amcl_global",
-        "amcl_global_matched",
-        "amcl_recovery",
-        "amcl_recovery_augmented",
-        "amcl_recovery_matched",
-        "hybrid",
-        "hybrid_no_proposal",
-        "hybrid_start_only",
-        "scanlocnet",
-        "scanlocnet_track",
-    ]
-    assert listed == expected
+    needed = {"amcl", "amcl_global", "amcl_recovery", "hybrid", "scanlocnet", "scanlocnet_track"}
+    assert needed <= set(listed)
+    assert listed == sorted(listed)  # file-name order: the order they run and are written in
     cnn = stage_localizers("localize_cnn", CONF / "localizer")
     assert cnn == ["cnn_ekf", "cnn_ensemble", "cnn_single"]
     assert localizer_overrides("localize_cnn", CONF / "localizer")[0] == (
