@@ -33,6 +33,7 @@ from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+from scanloc.hardware import MACHINE_KEYS
 from scanloc.io import atomic_path, read_json, write_json
 
 RECORD = "job_status.json"
@@ -42,6 +43,8 @@ FIXED_COLUMNS = ("job", "status", "job_wall_s")
 # their outputs into the job folder, stages/_app.py).
 SUMMARY_JSON = Path("reports/summary.json")
 METRICS_DIR = Path("reports/metrics")
+# The stages' timing files: of them only the machine-dependent training figures (epoch_s, ...).
+TIMING_DIR = Path("reports/timing")
 
 Cell = str | int | float
 log = logging.getLogger(__name__)
@@ -106,15 +109,19 @@ def flatten_numbers(obj: Mapping[str, Any], prefix: str = "") -> dict[str, float
 
 
 def job_metrics(job_dir: Path) -> dict[str, float | int]:
-    """The job's scalar metrics from reports/summary.json and reports/metrics/*.json. Keys are
+    """The job's scalar metrics from reports/summary.json and reports/metrics/*.json, and the
+    machine-dependent training figures (epoch_s, train_s) of reports/timing/*.json. Keys are
     the metric names; a name that two files share is prefixed with its file's stem."""
     files = [job_dir / SUMMARY_JSON, *sorted((job_dir / METRICS_DIR).glob("*.json"))]
+    timings = sorted((job_dir / TIMING_DIR).glob("*.json"))
     per_file: dict[Path, dict[str, float | int]] = {}
-    for path in files:
+    for path in [*files, *timings]:
         if path.is_file():
             content = read_json(path)
             if not isinstance(content, Mapping):
                 raise ValueError(f"{path}: expected a JSON object of metrics")
+            if path in timings:
+                content = {k: v for k, v in content.items() if k in MACHINE_KEYS}
             per_file[path] = flatten_numbers(content)
     seen: dict[str, int] = {}
     for values in per_file.values():
