@@ -169,3 +169,21 @@ def test_the_odometry_source_and_the_laser_mount_reach_the_localizers(
             localize(run_dir, monkeypatch, "odometry=gps")
     finally:
         del LOCALIZER_KINDS["dummy_inputs"]
+
+
+def test_a_name_with_hydras_global_keyword_is_composed_whole() -> None:
+    """Hydra reads `_global_` in a package path as its root package: amcl_global_matched must
+    still be composed under its own key and found by its name."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(CONF.resolve()), version_base=None):
+        cfg = compose(
+            config_name="localize",
+            overrides=[
+                "map_name=sparse_obstacles",
+                *localizer_overrides("localize", CONF / "localizer"),
+            ],
+        )
+    names = sorted(str(c.name) for c in cfg.localizers.values())
+    assert names == stage_localizers("localize", CONF / "localizer")
+    assert "amcl_global_matched" in names

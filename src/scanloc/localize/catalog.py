@@ -108,10 +108,19 @@ def stage_localizers(stage: str, conf_dir: Path = CONF_DIR) -> list[str]:
     return [n for n, info in load_catalog(conf_dir).items() if stage in info.stages]
 
 
+def package_key(name: str) -> str:
+    """The key under `localizers` at which a listed localizer is composed: its name, with
+    `_global_` written `-global-`, since Hydra reads `_global_` in a package path as its root
+    package (`localizers.amcl_global_matched` would land at `atched`)."""
+    return name.replace("_global_", "-global-")
+
+
 def localizer_overrides(stage: str, conf_dir: Path | None = None) -> list[str]:
     """Hydra overrides that compose the localizers `stage` runs into its config, each under
-    `localizers.<name>` as a `localizer@localizers.<name>` defaults entry would. `conf_dir`
-    defaults to the stages' config tree: $SCANLOC_CONF/localizer, else conf/localizer."""
+    `localizers.<package_key(name)>` as a defaults entry `localizer@localizers.<key>` would.
+    `conf_dir` defaults to the stages' config tree: $SCANLOC_CONF/localizer, else
+    conf/localizer."""
     if conf_dir is None:
         conf_dir = Path(os.environ.get("SCANLOC_CONF", "conf")) / "localizer"
-    return [f"+localizer@localizers.{n}={n}" for n in stage_localizers(stage, conf_dir)]
+    names = stage_localizers(stage, conf_dir)
+    return [f"+localizer@localizers.{package_key(n)}={n}" for n in names]

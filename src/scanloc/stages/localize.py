@@ -2,12 +2,13 @@
 per step each; a localizer with ranked hypotheses also writes them (<name>_hypotheses.npz).
 
 A stage runs the localizers whose conf/localizer/<name>.yaml lists it under `stages`
-(scanloc.localize.catalog), each composed by Hydra as a `localizer@localizers.<name>` entry of
-the stage's config, with the stage's own overrides (map_name, sensor, ...), so that adding a
-localizer is adding one yaml file. `++localizers.<name>.<key>=...` overrides a listed
-localizer's field; `only=<name>` runs just one; `localizer=<config>` runs that config alone.
-`odometry=wheel|laser` picks the run's odometry stream for every localizer; the laser's
-mounting on the robot comes from the run's meta.json `laser_mount` (zero when absent).
+(scanloc.localize.catalog), each composed by Hydra as a `localizer@localizers.<key>` entry of
+the stage's config (<key>: the name, `_global_` written `-global-`: catalog.package_key), with
+the stage's own overrides (map_name, sensor, ...), so that adding a localizer is adding one
+yaml file. `++localizers.<key>.<field>=...` overrides a listed localizer's field; `only=<name>`
+runs just one; `localizer=<config>` runs that config alone. `odometry=wheel|laser` picks the
+run's odometry stream for every localizer; the laser's mounting on the robot comes from the
+run's meta.json `laser_mount` (zero when absent).
 """
 
 from __future__ import annotations
@@ -41,7 +42,8 @@ def localizers_to_run(
     if cfg.get("localizer") is not None:
         return {str(cfg.localizer.name): cfg.localizer}
     listed = localizer_overrides(stage, Path(conf_dir()) / "localizer")
-    return compose(config_name=stage, overrides=[*overrides, *listed]).localizers
+    composed = compose(config_name=stage, overrides=[*overrides, *listed]).localizers
+    return {str(localizer.name): localizer for localizer in composed.values()}
 
 
 ODOMETRY_SOURCES = ("wheel", "laser")
