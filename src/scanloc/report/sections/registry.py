@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from scanloc.report.context import SectionSpec
 from scanloc.report.sections import (
+    bags,
     claims,
     curves,
     global_localization,
@@ -28,5 +29,6 @@ SECTIONS: tuple[SectionSpec, ...] = (
     global_localization.SECTION,
     real_data.SECTION,
     per_map.SECTION,  # one per map of params.yaml `maps`
+    bags.SECTION,  # one block per params.yaml `bags` entry
     provenance.SECTION,
 )
