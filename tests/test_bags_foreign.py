@@ -20,6 +20,8 @@ from scanloc.bags.errors import BagError
 from scanloc.bags.layout import BagLayout
 from scanloc.bags.read import BagRunOptions, read_bag_run
 from scanloc.sensor.laser import LaserSpec
+from scanloc.world.map_server import save_map
+from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid
 
 REPO = Path(__file__).resolve().parents[1]
 STORE = get_typestore(Stores.ROS2_HUMBLE)
@@ -197,7 +199,12 @@ def test_a_bag_of_another_laser_is_refused(tmp_path: Path) -> None:
 def test_the_bag_stage_writes_nothing_for_a_bad_bag(tmp_path: Path) -> None:
     bag = write_bag(tmp_path / "robot", messages(static=False))
     out = tmp_path / "robot_real"
+    # A map given, so that the stage reads the bag (without a map or truth it stops before).
+    grid = np.full((40, 40), FREE, dtype=np.int8)
+    grid[[0, -1], :] = grid[:, [0, -1]] = OCCUPIED
+    save_map(OccupancyGrid(grid, 0.1, (-2.0, -2.0, 0.0)), tmp_path / "office" / "map.yaml")
     stage = [sys.executable, "-m", "scanloc.stages.bag", f"bag={bag}", "name=robot"]
+    stage += [f"map_yaml={tmp_path / 'office' / 'map.yaml'}"]
     stage += [f"out_dir={out}", f"map_dir={tmp_path / 'map'}", f"timing_dir={tmp_path / 't'}"]
     stage += [f"hydra.run.dir={tmp_path / 'hydra'}", "sensor.num_beams=90"]
     stage += [f"sensor.angle_min={SPEC.angle_min!r}", f"sensor.angle_max={SPEC.angle_max!r}"]
