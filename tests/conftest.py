@@ -17,16 +17,14 @@ import numpy as np
 import pytest
 import torch
 
-from scanloc.sensor.laser import LaserSpec
-from scanloc.sensor.raycast import CastMap, cast_exact
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import Trajectory
 from scanloc.world.occupancy_grid import FREE, OCCUPIED, OccupancyGrid
+from small_world import small_map, ug01_scans
 from synthetic_scans import write_synthetic_scans
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO_ROOT.parent / "shared" / "data" / "stdr_maps"
-SPEC = LaserSpec()  # the URG-04LX the localizer tests simulate
 
 WalledRoom = Callable[[float, float, float], OccupancyGrid]
 Ug01Scans = Callable[[OccupancyGrid, np.ndarray, int], np.ndarray]
@@ -99,45 +97,20 @@ def walled_room() -> WalledRoom:
     return _walled_room
 
 
-def _asymmetric_room(res: float = 0.05) -> OccupancyGrid:
-    cells = np.zeros((round(5.0 / res), round(6.0 / res)), dtype=np.int8)
-    for x0, y0, x1, y1 in [
-        (0, 0, 6, 0.1),
-        (0, 4.9, 6, 5),
-        (0, 0, 0.1, 5),
-        (5.9, 0, 6, 5),
-        (1.5, 1.2, 1.6, 3.4),
-        (1.5, 3.3, 2.8, 3.4),
-        (4.0, 0.1, 4.1, 1.8),
-        (3.8, 3.0, 4.6, 3.6),
-    ]:
-        cells[round(y0 / res) : round(y1 / res), round(x0 / res) : round(x1 / res)] = OCCUPIED
-    cells.setflags(write=False)  # shared by every test of the session
-    return OccupancyGrid(cells, res)
-
-
 @pytest.fixture(scope="session")
 def room() -> OccupancyGrid:
     """A 6 m x 5 m room at 0.05 m with an L-shaped wall, a wall stub and a block: no symmetry,
     so a localizer can converge to one pose (read-only: copy `cells` to edit)."""
-    return _asymmetric_room()
+    grid = small_map()
+    grid.cells.setflags(write=False)  # shared by every test of the session
+    return grid
 
 
-def _ug01_scans(grid: OccupancyGrid, poses: np.ndarray, seed: int) -> np.ndarray:
-    exact = cast_exact(CastMap.from_grid(grid), poses, SPEC.beam_angles(), SPEC.range_max)
-    hit = np.isfinite(exact)
-    r = np.where(hit, exact, 0.0)
-    sigma = np.where(r < 1.0, 0.03, 0.03 * r)
-    noisy = r + sigma * np.random.default_rng(seed).standard_normal(r.shape)
-    noisy = np.clip(noisy, SPEC.range_min, SPEC.range_max)
-    return np.where(hit, noisy, SPEC.no_return_value).astype(np.float32)
-
-
-@pytest.fixture(scope="session")
-def ug01_scans() -> Ug01Scans:
+@pytest.fixture(scope="session", name="ug01_scans")
+def ug01_scans_fixture() -> Ug01Scans:
     """ug01_scans(grid, poses, seed): URG-04LX scans of `grid` at `poses` (N, 3), exact ranges
     with UG01-like noise (1σ 30 mm under 1 m, 3 % beyond), no return = 7.0."""
-    return _ug01_scans
+    return ug01_scans
 
 
 @pytest.fixture(scope="session")
@@ -153,7 +126,7 @@ def drive(room: OccupancyGrid) -> Drive:
         key = (steps, seed, scan_seed, *sorted(options.items()))
         if key not in made:
             traj = drive_trajectory(room, steps, seed=seed, **options)
-            made[key] = traj, _ug01_scans(room, traj.truth, scan_seed)
+            made[key] = traj, ug01_scans(room, traj.truth, scan_seed)
         traj, ranges = made[key]
         return copy.deepcopy(traj), ranges.copy()
 

@@ -16,37 +16,14 @@ from scanloc.localize.kld_resampling import kld_limit
 from scanloc.localize.mcl.config import MclConfig, build_filter, known_keys, run_mcl
 from scanloc.localize.mcl.filter import FilterParams, ParticleFilter
 from scanloc.pose import compose, inverse
-from scanloc.sensor.laser import LaserSpec
-from scanloc.sensor.raycast import CastMap, cast_exact
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import Trajectory
 from scanloc.world.map_server import load_map
-from scanloc.world.occupancy_grid import OCCUPIED, UNKNOWN, OccupancyGrid
+from scanloc.world.occupancy_grid import UNKNOWN, OccupancyGrid
+from small_world import SPEC, small_map, ug01_scans
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf" / "localizer"
-SPEC = LaserSpec()
-
-
-def small_map(res: float = 0.05) -> OccupancyGrid:
-    """A 6 m x 5 m room with an L-shaped wall, a wall stub and a block: no symmetry."""
-    cells = np.zeros((round(5.0 / res), round(6.0 / res)), dtype=np.int8)
-
-    def box(x0: float, y0: float, x1: float, y1: float) -> None:
-        cells[round(y0 / res) : round(y1 / res), round(x0 / res) : round(x1 / res)] = OCCUPIED
-
-    for x0, y0, x1, y1 in [
-        (0, 0, 6, 0.1),
-        (0, 4.9, 6, 5),
-        (0, 0, 0.1, 5),
-        (5.9, 0, 6, 5),
-        (1.5, 1.2, 1.6, 3.4),
-        (1.5, 3.3, 2.8, 3.4),
-        (4.0, 0.1, 4.1, 1.8),
-        (3.8, 3.0, 4.6, 3.6),
-    ]:
-        box(x0, y0, x1, y1)
-    return OccupancyGrid(cells, res)
 
 
 def ros(**params: object) -> MclConfig:
@@ -57,18 +34,6 @@ def ros(**params: object) -> MclConfig:
 def amcl_filter(grid: OccupancyGrid, seed: int = 0, **params: object) -> ParticleFilter:
     """amcl (the particle filter with amcl's parts) from ROS-named parameters."""
     return build_filter(grid, SPEC, ros(**params), seed=seed)
-
-
-def ug01_scans(grid: OccupancyGrid, poses: np.ndarray, seed: int) -> np.ndarray:
-    """Exact ranges with UG01-like noise (1σ 30 mm under 1 m, 3 % beyond), no return = 7.0."""
-    exact = cast_exact(CastMap.from_grid(grid), poses, SPEC.beam_angles(), SPEC.range_max)
-    hit = np.isfinite(exact)
-    r = np.where(hit, exact, 0.0)
-    noisy = r + np.where(r < 1.0, 0.03, 0.03 * r) * np.random.default_rng(seed).standard_normal(
-        r.shape
-    )
-    noisy = np.clip(noisy, SPEC.range_min, SPEC.range_max)
-    return np.where(hit, noisy, SPEC.no_return_value).astype(np.float32)
 
 
 @pytest.fixture(scope="module")

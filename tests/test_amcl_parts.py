@@ -17,7 +17,8 @@ from scanloc.localize.mcl.filter import FilterParams, ParticleFilter
 from scanloc.pose import compose, inverse, wrap_angle, wrap_pi
 from scanloc.sensor.laser import LaserSpec
 from scanloc.trajectory.drive import drive_trajectory
-from test_amcl import CONF, amcl_filter, ros, small_map, ug01_scans
+from small_world import small_map, ug01_scans
+from test_amcl import CONF, amcl_filter, ros
 
 SPEC = LaserSpec()
 

@@ -22,7 +22,8 @@ from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.pose import wrap_angle
 from scanloc.scanlocnet.model import Hypotheses
 from scanloc.trajectory.drive import drive_trajectory
-from test_amcl import SPEC, amcl_filter, ros, small_map, ug01_scans
+from small_world import SPEC, small_map, ug01_scans
+from test_amcl import amcl_filter, ros
 
 GRID = small_map()
 # conf/localizer/hybrid.yaml's departures from amcl's defaults

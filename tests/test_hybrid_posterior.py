@@ -18,7 +18,8 @@ from scanloc.localize.mcl.config import build_filter
 from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.pose import wrap_angle
 from scanloc.world.occupancy_grid import OCCUPIED, OccupancyGrid
-from test_amcl import SPEC, ros, ug01_scans
+from small_world import SPEC, ug01_scans
+from test_amcl import ros
 from test_hybrid import hypotheses_from
 
 RES = 0.05  # the posterior grid's cell (m), as the map's

@@ -11,7 +11,8 @@ import pytest
 from scanloc.localize.mcl.config import build_filter
 from scanloc.pose import compose, wrap_angle
 from scanloc.stages.localize import laser_mount
-from test_amcl import SPEC, ros, small_map, ug01_scans
+from small_world import SPEC, small_map, ug01_scans
+from test_amcl import ros
 
 GRID = small_map()
 MOUNT = (0.3, 0.05, 0.2)  # ahead of the rotation centre, a little left, turned

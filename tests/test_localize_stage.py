@@ -23,7 +23,7 @@ from scanloc.stages.localize import run_stage
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import save_trajectory
 from scanloc.world.map_server import save_map
-from test_amcl import small_map, ug01_scans
+from small_world import small_map, ug01_scans
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 DUMMY = """\

@@ -30,7 +30,8 @@ from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.raycast import CastMap, cast_exact
 from scanloc.world.free_space import sample_free_poses
 from scanloc.world.occupancy_grid import OccupancyGrid
-from test_amcl import amcl_filter, small_map, ug01_scans
+from small_world import small_map, ug01_scans
+from test_amcl import amcl_filter
 
 SPEC = LaserSpec()
 ROS1 = BeamParams()  # z_hit 0.95, z_short 0.1, z_max 0.05, z_rand 0.05, σ 0.2, λ 0.1
