@@ -40,7 +40,8 @@ def ensemble_mean_and_cov(preds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     mean = np.empty(preds.shape[1:], dtype=np.float64)
     mean[:, :2] = preds[:, :, :2].mean(axis=0)
     theta = preds[:, :, 2]
-    mean[:, 2] = np.arctan2(np.sin(theta).mean(axis=0), np.cos(theta).mean(axis=0))
+    heading = np.arctan2(np.sin(theta).mean(axis=0), np.cos(theta).mean(axis=0))
+    mean[:, 2] = np.where(heading == -np.pi, np.pi, heading)  # arctan2(-0.0, x < 0) is -π
     if members == 1:
         return mean, np.full((preds.shape[1], 3, 3), np.nan)
     dev = preds - mean[None]
