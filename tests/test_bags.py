@@ -1,6 +1,7 @@
 """Bags out and back in: a simulated drive through a ROS 1 bag and the CARMEN Intel log's real
 run through a ROS 2 bag (sqlite3 and mcap) come back as the same run, ranges and poses bit for
-bit; the exported topics follow ROS's conventions (latched map, frames, REP 117 ranges)."""
+bit, and localize and score the same to the last digit of the metrics; the exported topics
+follow ROS's conventions (latched map, frames, REP 117 ranges)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 from rosbags.highlevel import AnyReader
@@ -20,11 +22,15 @@ from rosbags.rosbag2 import Reader as Reader2
 from scanloc.bags.read import BagRunOptions, read_bag_run
 from scanloc.bags.ros_messages import EPOCH_NS, quaternion_yaw, yaw_quaternions
 from scanloc.bags.write import export_run
+from scanloc.evaluate.table2 import evaluate_all, load_truth, metrics_json
+from scanloc.localize.kinds import LocalizeInputs, run_localizer
 from scanloc.real.carmen import read_carmen_log
 from scanloc.real.carmen_laser import clean_ranges
 from scanloc.real.carmen_odometry import scan_odometry, wrap_logged_headings
+from scanloc.real.log_mapping import build_map_from_log
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
+from scanloc.stages.localize import laser_mount as stage_laser_mount
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import Trajectory, load_trajectory, save_trajectory
 from scanloc.world.map_server import load_map, save_map
@@ -186,3 +192,58 @@ def test_the_stages_export_and_read_back(sim_run: Path, tmp_path: Path) -> None:
     assert load_map(tmp_path / "maps" / "robot" / "map.yaml").cells.tobytes() == (
         load_map(sim_run / "map" / "map.yaml").cells.tobytes()
     )
+
+
+def localize_and_score(run_dir: Path, map_yaml: Path) -> tuple[dict[str, pd.DataFrame], str]:
+    """Two particle filters on a saved run, as the localize stage runs them (the laser's
+    mounting from the run's meta.json), and the evaluate stage's metrics JSON of them."""
+    traj, ranges = load_trajectory(run_dir)
+    sensor = json.loads((run_dir / "meta.json").read_text())["sensor"]
+    inputs = LocalizeInputs(
+        traj, ranges, map_yaml, laser_spec_from_config(sensor), stage_laser_mount(run_dir)
+    )
+    amcl = yaml.safe_load((REPO / "conf" / "localizer" / "amcl.yaml").read_text())
+    configs = {
+        "amcl": amcl | {"max_particles": 1000},
+        "amcl_global": amcl
+        | {"mode": "global", "max_particles": 3000, "laser_model_type": "likelihood_field_prob"},
+    }
+    tables = {name: run_localizer(cfg, inputs).table for name, cfg in configs.items()}
+    truth, kidnaps = load_truth(run_dir)
+    return tables, metrics_json(evaluate_all(truth, tables, kidnap_steps=kidnaps))
+
+
+def assert_same_scores(bag: Path, original: Path, map_yaml: Path, tmp: Path) -> None:
+    """The bag read back as the bag stage saves it localizes and scores exactly as the
+    original run: the estimate tables bit for bit (times to the bag's nanosecond stamps) and
+    the metrics JSON to the last digit."""
+    sensor = json.loads((original / "meta.json").read_text())["sensor"]
+    traj, ranges, meta = read_bag_run(
+        bag, laser_spec_from_config(sensor), BagRunOptions(truth_topic="/ground_truth")
+    )
+    save_trajectory(traj, tmp / "from_bag", ranges, meta | {"sensor": sensor})
+    got_tables, got = localize_and_score(tmp / "from_bag", map_yaml)
+    want_tables, want = localize_and_score(original, map_yaml)
+    assert got == want
+    for name, table in want_tables.items():
+        poses = [c for c in table.columns if c != "t"]
+        assert got_tables[name][poses].to_numpy().tobytes() == table[poses].to_numpy().tobytes()
+        np.testing.assert_allclose(got_tables[name]["t"], table["t"], rtol=0, atol=1e-9)
+
+
+def test_a_simulated_drive_scores_the_same_through_a_ros1_bag(sim_run: Path) -> None:
+    bag = export_run(sim_run / "run", sim_run / "map" / "map.yaml", sim_run / "scored", "ros1")
+    assert stage_laser_mount(sim_run / "run") == (0.1, -0.05, 0.3)  # the mount is exercised
+    assert_same_scores(bag, sim_run / "run", sim_run / "map" / "map.yaml", sim_run)
+
+
+def test_the_intel_log_scores_the_same_through_a_ros2_bag(intel_run: Path, tmp_path: Path) -> None:
+    traj, ranges = load_trajectory(intel_run / "intel_real")
+    sensor = json.loads((intel_run / "intel_real" / "meta.json").read_text())["sensor"]
+    spec = laser_spec_from_config(sensor)
+    grid = build_map_from_log(traj.truth, ranges, spec.beam_angles(), spec.range_max)
+    save_map(grid, tmp_path / "map" / "map.yaml")
+    bag = export_run(
+        intel_run / "intel_real", tmp_path / "map" / "map.yaml", tmp_path / "bag", "ros2"
+    )
+    assert_same_scores(bag, intel_run / "intel_real", tmp_path / "map" / "map.yaml", tmp_path)
