@@ -28,6 +28,7 @@ STAGES_DIR = REPO_ROOT / "src" / "scanloc" / "stages"
 
 PROFILES = ("smoke", "laptop", "paper")
 TRAINERS = ("cpu", "gpu", "ddp")
+ODOMETRY = ("wheel", "laser")  # the odometry sources of the localize stages
 ROWS = ("mlp", "cnn1d_20k", "cnn1d_200k", "cnn2d")
 DATASETS = ("map1_small", "map1_large", "map2_small")
 
@@ -57,6 +58,7 @@ GROUP_HOST = {
     "localizer": "localize",
     "run": "trajectory",
     "profile": "report",
+    "study": "tune",
 }
 # Not checked option by option: the profile picks the scale files (test_scale_files_...),
 # hydra/launcher is exercised in test_launchers.py.
@@ -615,6 +617,7 @@ def test_dvc_stage_list_is_the_contract():
         "real_valscans",
         "real_train",
         "real_localize",
+        "localize_seeds",
         "evaluate",
         "report",
     }
@@ -634,6 +637,8 @@ def test_dvc_stage_list_is_the_contract():
     assert expansions("real") == logs == expansions("real_valscans") == expansions("real_train")
     runs = ("real", "sim", "kidnap")
     assert expansions("real_localize") == {f"{log}-{r}" for log in logs for r in runs}
+    seed_runs = {f"{log}-{r}-{o}" for log in logs for r in ("real", "kidnap") for o in ODOMETRY}
+    assert expansions("localize_seeds") == seed_runs
     for single in ("evaluate", "report"):
         assert single in names
     assert params["profile"] in PROFILES and params["trainer"] in TRAINERS

@@ -231,6 +231,18 @@ def test_smoke_metrics_hold_every_contract_metric(smoke_repo: Path) -> None:
             assert {"pos_err_rmse_m", "steps_to_converge"} <= set(per_run[method]), (run, method)
         assert per_run["amcl"]["n_steps"] == 50  # the middle half of smoke's first 100 scans
         assert "top5_recall" in per_run["scanlocnet"]
+    # Real logs over filter seeds, both odometry sources (the seeds contract of design.md).
+    seeds = metrics["reports/metrics/real_seeds.json"]
+    for run in ("intel_real", "intel_kidnap"):
+        for odometry in ("wheel", "laser"):
+            figures = seeds[run][odometry]
+            assert set(figures) == {"amcl", "amcl_real", "amcl_global", "hybrid", "scanlocnet"}
+            for name, per_localizer in figures.items():
+                expected = 1 if name == "scanlocnet" else 2  # deterministic: one run
+                assert per_localizer["n_seeds"] == expected, (run, odometry, name)
+                for key in ("pos_err_rmse_m", "heading_err_rmse_deg", "steps_to_converge"):
+                    assert {key, f"{key}_ci95_low", f"{key}_ci95_high"} <= set(per_localizer)
+                assert len(per_localizer["seeds"]) == expected
 
 
 @pytest.mark.skipif(not REAL_LOG.is_file(), reason="needs ../shared/data/carmen (the real logs)")

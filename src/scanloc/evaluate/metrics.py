@@ -151,6 +151,7 @@ def localization_metrics(
     out["pos_err_p95_m"] = np.nan if empty else float(np.percentile(pos_err, 95))
     out["heading_err_mean_deg"] = np.nan if empty else float(heading_deg.mean())
     out["heading_err_median_deg"] = np.nan if empty else float(np.median(heading_deg))
+    out["heading_err_rmse_deg"] = np.nan if empty else float(np.sqrt(np.mean(heading_deg**2)))
     for key, limit in WITHIN_THRESHOLDS_M.items():
         out[key] = _share(pos_err < limit)
     out["frac_gross_over_1m"] = _share(pos_err > GROSS_FAILURE_M)

@@ -17,16 +17,23 @@ keeps the per-run metric name for its mean, with `<name>_ci95_low`, `<name>_ci95
   `_median`, `_max` over all kidnaps): censored counts as in metrics.py (a localizer that never
   converges in a stretch gets the stretch's length), so they are lower bounds where censored.
 - `relosses`, `false_convergences`: mean per run with a Student-t 95 % interval, and `_total`.
+
+Real logs are judged over *filter* seeds instead (one run, the particle filters' seeds:
+`over_filter_seeds`, `evaluate_filter_seeds`): the run is the log, only the filter's draws
+differ.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy import stats
+
+from scanloc.evaluate.table2 import evaluate_trajectory
 
 Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile
 
@@ -146,3 +153,54 @@ def global_localization(
             for m in methods
         }
     return out
+
+
+# What a real-log run is judged by over filter seeds (reports/metrics/real_seeds.json).
+FILTER_SEED_METRICS = (
+    "pos_err_rmse_m",
+    "pos_err_median_m",
+    "heading_err_rmse_deg",
+    "frac_gross_over_1m",
+    "steps_to_converge",
+    "kidnaps_recovered_frac",
+    "recovery_steps_max",
+    "relosses",
+)
+
+
+def over_filter_seeds(runs: Mapping[int, Mapping[str, Any]]) -> dict[str, Any]:
+    """One localizer's figures over filter seeds on one run ({seed: metrics}): per metric of
+    FILTER_SEED_METRICS the mean with a Student-t 95 % interval and the worst seed (`_max`),
+    `n_seeds`, and the per-seed values under `seeds/<seed>/` (the seeds contract). A
+    deterministic localizer has one seed: its interval is its value."""
+    if not runs:
+        raise ValueError("over_filter_seeds: no runs")
+    out: dict[str, Any] = {"n_seeds": len(runs)}
+    for name in FILTER_SEED_METRICS:
+        values = [float(r[name]) for r in runs.values() if r.get(name) is not None]
+        if len(values) != len(runs) or not np.isfinite(values).all():
+            continue
+        mean, low, high = mean_interval(values)
+        out |= {name: mean, f"{name}_ci95_low": low, f"{name}_ci95_high": high}
+        out[f"{name}_max"] = max(values)
+    out["seeds"] = {
+        str(seed): {k: r[k] for k in FILTER_SEED_METRICS if r.get(k) is not None}
+        for seed, r in sorted(runs.items())
+    }
+    return out
+
+
+def evaluate_filter_seeds(trajectory_dir: Path, seeds_dir: Path) -> dict[str, dict[str, Any]]:
+    """{localizer: figures over seeds} of a localize_seeds folder (<seeds_dir>/s<seed>/
+    <localizer>.csv) against its trajectory."""
+    folders = sorted(
+        (p for p in Path(seeds_dir).glob("s*") if p.is_dir() and p.name[1:].isdigit()),
+        key=lambda p: int(p.name[1:]),
+    )
+    if not folders:
+        raise FileNotFoundError(f"{seeds_dir}: no s<seed>/ folders of estimate tables")
+    per_localizer: dict[str, dict[int, Mapping[str, Any]]] = {}
+    for folder in folders:
+        for name, metrics in evaluate_trajectory(Path(trajectory_dir), [folder]).items():
+            per_localizer.setdefault(name, {})[int(folder.name[1:])] = metrics
+    return {name: over_filter_seeds(runs) for name, runs in sorted(per_localizer.items())}

@@ -118,6 +118,7 @@ MODERN_COLUMNS: tuple[tuple[str, str, Callable[[float | None], str]], ...] = (
     ("pos_err_p95_m", "95th pct. [m]", _fixed(3)),
     ("heading_err_mean_deg", "heading error mean [°]", _fixed(2)),
     ("heading_err_median_deg", "median [°]", _fixed(2)),
+    ("heading_err_rmse_deg", "RMSE [°]", _fixed(2)),
     ("frac_within_0_1m", "< 0.1 m", _percent),
     ("frac_within_0_25m", "< 0.25 m", _percent),
     ("frac_within_0_5m", "< 0.5 m", _percent),

@@ -36,18 +36,28 @@ HYBRID_KEYS = ("model", "k", "k_raw", "nms_distance", "nms_angle_deg", "proposal
 
 Kind = Callable[[Mapping[str, Any], "LocalizeInputs"], Localization]
 LOCALIZER_KINDS: dict[str, Kind] = {}
+SEEDED_KINDS: set[str] = set()  # kinds whose result depends on the config's `seed`
 
 
-def register_kind(kind: str) -> Callable[[Kind], Kind]:
-    """Register the decorated function as the runner of localizer configs of `kind`."""
+def register_kind(kind: str, *, seeded: bool = False) -> Callable[[Kind], Kind]:
+    """Register the decorated function as the runner of localizer configs of `kind`;
+    `seeded`: its result depends on the config's `seed` (a particle filter), so that runs over
+    several seeds mean something (the other kinds are deterministic)."""
 
     def register(run: Kind) -> Kind:
         if kind in LOCALIZER_KINDS and LOCALIZER_KINDS[kind] is not run:
             raise ValueError(f"localizer kind {kind!r} is registered twice")
         LOCALIZER_KINDS[kind] = run
+        if seeded:
+            SEEDED_KINDS.add(kind)
         return run
 
     return register
+
+
+def is_seeded(cfg: Mapping[str, Any]) -> bool:
+    """Whether the localizer a config describes gives other results for other seeds."""
+    return cfg.get("kind") in SEEDED_KINDS
 
 
 @dataclass(frozen=True)
@@ -82,7 +92,7 @@ def ensemble_model_paths(cfg: Mapping[str, Any]) -> list[Path]:
     return paths
 
 
-@register_kind("amcl")
+@register_kind("amcl", seeded=True)
 def run_amcl_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """ROS amcl (the particle filter with amcl's parts), tracking from the true first pose or
     global (`mode`)."""
@@ -102,7 +112,7 @@ def run_amcl_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localizatio
     return run._replace(setup_s=run.setup_s + loaded)
 
 
-@register_kind("hybrid")
+@register_kind("hybrid", seeded=True)
 def run_hybrid_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """The particle filter with the learned localizer's hypotheses as its proposal and their
     importance weights (hybrid.py)."""

@@ -32,6 +32,7 @@ SCANS_DIR = Path("data/scans")
 METRICS_DIR = Path("reports/metrics")
 METRICS_JSON = METRICS_DIR / "localization.json"
 GLOBAL_METRICS_JSON = METRICS_DIR / "global_localization.json"
+REAL_SEEDS_JSON = METRICS_DIR / "real_seeds.json"
 LOCALIZE_TIMING_DIR = Path("reports/localize_timing")
 # The wall-clock figures per localizer that the report shows beside the evaluated metrics.
 TIMING_FIGURES = ("time_per_scan_s", "time_per_scan_median_s", "setup_s")
@@ -257,6 +258,13 @@ def load_global_figures(root: Path) -> Mapping[str, Mapping[str, Mapping[str, An
     return read_json(path) if path.is_file() else None
 
 
+def load_real_seed_figures(root: Path) -> Mapping[str, Mapping[str, Any]] | None:
+    """{<log>_<run>: {odometry: {localizer: figures over filter seeds}}} from evaluate, or
+    None."""
+    path = root / REAL_SEEDS_JSON
+    return read_json(path) if path.is_file() else None
+
+
 def total_stage_seconds(root: Path) -> float:
     """The sum of the stages' wall times in reports/timing/ (the report's own excluded)."""
     return sum(float(wall_s or 0.0) for _, wall_s in stage_timings(root))
@@ -266,8 +274,8 @@ def total_stage_seconds(root: Path) -> float:
 class Artifacts:
     """What several sections and the claims read, loaded once: the paper drive's truth and
     estimate tables, the localization metrics of every trajectory (with the localize stages'
-    wall-clock figures merged in), the training runs and the figures over seeds (None if
-    evaluate wrote none)."""
+    wall-clock figures merged in), the training runs and the figures over seeds (trajectory
+    seeds of the maps, filter seeds of the real logs; None if evaluate wrote none)."""
 
     root: Path
     truth: np.ndarray
@@ -276,6 +284,7 @@ class Artifacts:
     tables: Mapping[str, pd.DataFrame]
     _grids: dict[str, OccupancyGrid] = field(default_factory=dict, repr=False)
     global_figures: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None
+    real_seed_figures: Mapping[str, Mapping[str, Any]] | None = None
 
     @classmethod
     def load(cls, root: Path) -> Artifacts:
@@ -293,6 +302,7 @@ class Artifacts:
             runs,
             tables,
             global_figures=load_global_figures(root),
+            real_seed_figures=load_real_seed_figures(root),
         )
 
     @property

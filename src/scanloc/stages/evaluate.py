@@ -1,7 +1,9 @@
 """`evaluate` stage: Table 2 (paper §4.4), modern and global-localization metrics for every
 localizer on every trajectory of the pipeline's maps (params.yaml `maps`) and real logs
 (`real_logs`); then, per map and log, the figures over its evaluation seeds (success rates
-with Wilson intervals, steps to converge and to recover, re-losses, false convergences)."""
+with Wilson intervals, steps to converge and to recover, re-losses, false convergences); and,
+per real log, run and odometry source, the compared localizers over filter seeds
+(localize_seeds stage)."""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ from pathlib import Path
 import yaml
 from omegaconf import DictConfig
 
-from scanloc.evaluate.seeds import global_localization
+from scanloc.evaluate.seeds import evaluate_filter_seeds, global_localization
 from scanloc.evaluate.table2 import evaluate_runs, nested_json
 from scanloc.io import atomic_path
 from scanloc.stages._app import stage_main, timed_stage
@@ -59,6 +61,19 @@ def main(cfg: DictConfig) -> None:
         figures = global_localization(metrics, sets, int(cfg.converge_within_steps))
         with atomic_path(Path(cfg.global_metrics_path)) as tmp:
             tmp.write_text(nested_json(figures), encoding="utf-8")
+        real_seeds = {
+            f"{log}_{run}": {
+                odometry: evaluate_filter_seeds(
+                    Path(cfg.trajectory_root) / f"{log}_{run}",
+                    Path(cfg.localize_seeds_root) / f"{log}_{run}_{odometry}",
+                )
+                for odometry in cfg.seed_study.odometry
+            }
+            for log in logs
+            for run in cfg.seed_study.runs
+        }
+        with atomic_path(Path(cfg.real_seeds_path)) as tmp:
+            tmp.write_text(nested_json(real_seeds), encoding="utf-8")
 
 
 if __name__ == "__main__":

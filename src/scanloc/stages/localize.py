@@ -34,15 +34,16 @@ from scanloc.trajectory.format import Trajectory, load_trajectory
 
 
 def localizers_to_run(
-    cfg: DictConfig, stage: str, overrides: Sequence[str]
+    cfg: DictConfig, stage: str, overrides: Sequence[str], config_name: str | None = None
 ) -> Mapping[str, DictConfig]:
     """The localizers this run runs, by name: the single `localizer` when one is chosen, else
-    those conf/localizer lists for `stage`, composed into the stage's config by Hydra with the
-    run's `overrides`."""
+    those conf/localizer lists for `stage`, composed by Hydra into the running stage's config
+    (`config_name`, default: `stage`) with the run's `overrides`."""
     if cfg.get("localizer") is not None:
         return {str(cfg.localizer.name): cfg.localizer}
     listed = localizer_overrides(stage, Path(conf_dir()) / "localizer")
-    composed = compose(config_name=stage, overrides=[*overrides, *listed]).localizers
+    composed = compose(config_name=config_name or stage, overrides=[*overrides, *listed])
+    composed = composed.localizers
     return {str(localizer.name): localizer for localizer in composed.values()}
 
 
@@ -85,19 +86,25 @@ def select_odometry(traj: Trajectory, source: str, run_dir: Path) -> Trajectory:
     return replace(traj, odometry=traj.laser_odometry)
 
 
-def localize_all(cfg: DictConfig, stage: str, overrides: Sequence[str]) -> dict[str, Any]:
-    """Run the stage's localizers (or just cfg.only) on the trajectory; write each table;
-    return the timing figures per localizer."""
+def localize_inputs(cfg: DictConfig) -> LocalizeInputs:
+    """What the stage's localizers see: the run with its chosen odometry, its scans, the map,
+    the laser and its mount."""
     run_dir = Path(cfg.trajectory_dir)
     traj, ranges = load_trajectory(run_dir)
     traj = select_odometry(traj, str(cfg.get("odometry", "wheel")), run_dir)
-    inputs = LocalizeInputs(
+    return LocalizeInputs(
         traj,
         ranges,
         Path(cfg.map_yaml),
         laser_spec_from_config(to_dict(cfg.sensor)),
         laser_mount(run_dir),
     )
+
+
+def localize_all(cfg: DictConfig, stage: str, overrides: Sequence[str]) -> dict[str, Any]:
+    """Run the stage's localizers (or just cfg.only) on the trajectory; write each table;
+    return the timing figures per localizer."""
+    inputs = localize_inputs(cfg)
     localizers = localizers_to_run(cfg, stage, overrides)
     names = list(localizers) if cfg.only is None else [str(cfg.only)]
     unknown = [n for n in names if n not in localizers]

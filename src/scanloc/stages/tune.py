@@ -1,0 +1,277 @@
+"""`tune`: choose a localizer's settings on tune runs, by coordinate descent (conf/tune.yaml;
+a study in conf/study/ names the localizer, its tune runs, the objective and the factors).
+
+Run by hand, never by DVC: what a study chooses is a person's decision, written with its
+figures into the localizer's config. The tune runs are never scored (a real log's mapping
+part, a map's tune_kidnap run: conf/seeds.yaml), so a setting is never chosen on the runs that
+judge it. Prints one Markdown row per trial; the last line is one JSON object of the result
+(also written to `out_path`).
+
+Why coordinate descent and not a full grid: the amcl_real study's 7 factors of 2–4 options
+are 2592 configurations; one factor at a time, in the study's order, is 13 trials a sweep (a
+second sweep revisits each factor with the others' choices made), and each factor's effect can
+be read off the table.
+
+Objectives (lower is better, a mean over runs and seeds):
+- `tracking`: position RMSE [m] + heading RMSE [rad], each run cut at its kidnap steps and every
+  stretch tracked from its own first pose;
+- `global`: steps to converge + mean recovery steps after the kidnaps (censored counts) +
+  100 × the tracking position error [m] (1 cm weighs like one step; 1 m when never converged).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from hydra import compose
+from omegaconf import DictConfig
+
+from scanloc.evaluate.metrics import convergence_metrics, localization_metrics
+from scanloc.io import write_json
+from scanloc.localize.kinds import LocalizeInputs, run_localizer
+from scanloc.localize.mcl.motion_fit import fit_odometry_alphas
+from scanloc.sensor.simulate import laser_spec_from_config
+from scanloc.stages._app import conf_dir, stage_main, to_dict
+from scanloc.stages.localize import laser_mount, select_odometry
+from scanloc.trajectory.format import Trajectory, load_trajectory
+
+FITTED_SCALE_KEY = "fitted_alpha_scale"
+DEFAULT_SENSOR = "urg04lx"  # the maps' laser (conf/localize.yaml)
+NEVER_CONVERGED_ERROR_M = 1.0
+
+
+@dataclass(frozen=True)
+class TuneRun:
+    """One tune run as the localizers see it, and the localizer's config composed for its map."""
+
+    name: str
+    inputs: LocalizeInputs
+    localizer: dict[str, Any]
+
+
+def get_key(config: Mapping[str, Any], dotted: str) -> Any:
+    """config["a"]["b"] for "a.b" (None when absent)."""
+    node: Any = config
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return None
+        node = node[part]
+    return node
+
+
+def with_keys(config: Mapping[str, Any], keys: Mapping[str, Any]) -> dict[str, Any]:
+    """A copy of `config` with the dotted `keys` set (nested mappings copied, not shared)."""
+    out = json.loads(json.dumps(config))
+    for dotted, value in keys.items():
+        *parents, leaf = dotted.split(".")
+        node = out
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return out
+
+
+def resolve_option(option: Mapping[str, Any], fitted: Sequence[float]) -> dict[str, Any]:
+    """A factor option as localizer config keys: `fitted_alpha_scale: k` becomes
+    odom_alpha1..4 = k × the fitted alphas."""
+    keys = {k: v for k, v in option.items() if k != FITTED_SCALE_KEY}
+    if FITTED_SCALE_KEY in option:
+        scale = float(option[FITTED_SCALE_KEY])
+        keys |= {f"odom_alpha{i}": scale * a for i, a in enumerate(fitted, start=1)}
+    return keys
+
+
+def stretches(inputs: LocalizeInputs) -> list[LocalizeInputs]:
+    """The run cut at its kidnap steps: each stretch tracked from its own first true pose."""
+    traj = inputs.trajectory
+    bounds = [0, *traj.kidnap_steps, len(traj.truth)]
+    pieces = []
+    for a, b in itertools.pairwise(bounds):
+        laser = None if traj.laser_odometry is None else traj.laser_odometry[a:b]
+        piece = Trajectory(
+            times=traj.times[a:b], truth=traj.truth[a:b], odometry=traj.odometry[a:b],
+            laser_odometry=laser,
+        )  # fmt: skip
+        pieces.append(
+            LocalizeInputs(
+                piece, inputs.ranges[a:b], inputs.map_yaml, inputs.laser, inputs.laser_mount
+            )
+        )
+    return pieces
+
+
+def tracking_score(config: Mapping[str, Any], inputs: LocalizeInputs) -> dict[str, float]:
+    """Position and heading RMSE over the run's stretches (objective `tracking`)."""
+    pos, heading = [], []
+    for piece in stretches(inputs):
+        m = localization_metrics(piece.trajectory.truth, run_localizer(config, piece).table)
+        pos.append(m["pos_err_rmse_m"])
+        heading.append(m["heading_err_rmse_deg"])
+    pos_rmse, heading_rmse = float(np.mean(pos)), float(np.mean(heading))
+    return {
+        "score": pos_rmse + math.radians(heading_rmse),
+        "pos_err_rmse_m": pos_rmse,
+        "heading_err_rmse_deg": heading_rmse,
+    }
+
+
+def global_score(config: Mapping[str, Any], inputs: LocalizeInputs) -> dict[str, float]:
+    """Convergence, recovery and tracking error of the whole run (objective `global`)."""
+    traj = inputs.trajectory
+    table = run_localizer(config, inputs).table
+    m = convergence_metrics(traj.truth, table, traj.kidnap_steps)
+    error = m["tracking_pos_err_mean_m"]
+    error = NEVER_CONVERGED_ERROR_M if not math.isfinite(error) else error
+    recovery = m.get("recovery_steps_mean", 0.0)
+    return {
+        "score": m["steps_to_converge"] + recovery + 100.0 * error,
+        "steps_to_converge": m["steps_to_converge"],
+        "recovery_steps_mean": recovery,
+        "tracking_pos_err_mean_m": error,
+    }
+
+
+OBJECTIVES: dict[str, Callable[[Mapping[str, Any], LocalizeInputs], dict[str, float]]] = {
+    "tracking": tracking_score,
+    "global": global_score,
+}
+
+
+def score_trial(
+    keys: Mapping[str, Any], runs: Sequence[TuneRun], seeds: Sequence[int], objective: str
+) -> dict[str, Any]:
+    """The objective's figures on every run and seed with `keys` set, and their means."""
+    per_run = {
+        f"{run.name}/s{seed}": OBJECTIVES[objective](
+            with_keys(run.localizer, {**keys, "seed": int(seed)}), run.inputs
+        )
+        for run in runs
+        for seed in seeds
+    }
+    figures = sorted({k for r in per_run.values() for k in r})
+    return {k: float(np.mean([r[k] for r in per_run.values()])) for k in figures} | {
+        "runs": per_run
+    }
+
+
+def coordinate_descent(
+    factors: Mapping[str, Sequence[Mapping[str, Any]]],
+    fitted: Sequence[float],
+    runs: Sequence[TuneRun],
+    seeds: Sequence[int],
+    objective: str,
+    passes: int = 1,
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The chosen keys and every trial, in order (module doc): up to `passes` sweeps over the
+    factors, stopping after a sweep that keeps nothing (a later factor's choice can change
+    which option of an earlier one is best)."""
+    base = runs[0].localizer
+    chosen: dict[str, Any] = {}
+    best = score_trial(chosen, runs, seeds, objective)
+    trials = [{"factor": "start", "option": {}, "pass": 0, **best, "kept": True}]
+    for sweep in range(1, passes + 1):
+        improved = False
+        for factor, options in factors.items():
+            for option in options:
+                keys = resolve_option(option, fitted)
+                current = {k: chosen.get(k, get_key(base, k)) for k in keys}
+                if current == keys:
+                    continue  # the current setting: already scored
+                result = score_trial(chosen | keys, runs, seeds, objective)
+                kept = result["score"] < best["score"]
+                trials.append(
+                    {"factor": factor, "option": keys, "pass": sweep, **result, "kept": kept}
+                )
+                if kept:
+                    best, chosen, improved = result, chosen | keys, True
+        if not improved:
+            break
+    return chosen, trials
+
+
+def tune_run(spec: Mapping[str, Any], localizer: str, max_steps: int | None) -> TuneRun:
+    """A study's run entry (run_dir, map_name, optional sensor_file and odometry) loaded, with
+    the localizer composed for its map as the localize stage composes it."""
+    run_dir = Path(spec["run_dir"])
+    traj, ranges = load_trajectory(run_dir)
+    if max_steps is not None:
+        laser = None if traj.laser_odometry is None else traj.laser_odometry[:max_steps]
+        traj = Trajectory(
+            times=traj.times[:max_steps], truth=traj.truth[:max_steps],
+            odometry=traj.odometry[:max_steps], laser_odometry=laser,
+            kidnap_steps=tuple(k for k in traj.kidnap_steps if k < max_steps),
+        )  # fmt: skip
+        ranges = ranges[:max_steps]
+    odometry = str(spec.get("odometry", "wheel"))
+    sensor_file = Path(
+        spec.get("sensor_file") or Path(conf_dir()) / "sensor" / f"{DEFAULT_SENSOR}.yaml"
+    )
+    spec_laser = laser_spec_from_config(yaml.safe_load(sensor_file.read_text()))
+    map_yaml = Path(spec.get("map_yaml") or f"data/maps/{spec['map_name']}/map.yaml")
+    overrides = [f"localizer={localizer}", f"map_name={spec['map_name']}"]
+    composed = to_dict(compose(config_name="localize", overrides=overrides).localizer)
+    inputs = LocalizeInputs(
+        select_odometry(traj, odometry, run_dir), ranges, map_yaml, spec_laser, laser_mount(run_dir)
+    )
+    return TuneRun(f"{run_dir.name}/{odometry}", inputs, composed)
+
+
+def trials_markdown(trials: Sequence[Mapping[str, Any]]) -> str:
+    """One row per trial: factor, option, the objective's figures, kept."""
+    figures = [k for k in trials[0] if k not in ("factor", "option", "pass", "kept", "runs")]
+    lines = [
+        "| pass | factor | option | " + " | ".join(figures) + " | kept |",
+        "|---|---|---|" + "---|" * len(figures) + "---|",
+    ]
+    for t in trials:
+        option = ", ".join(
+            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in t["option"].items()
+        )
+        values = " | ".join(f"{t[k]:.4f}" for k in figures)
+        kept = "yes" if t["kept"] else ""
+        lines.append(
+            f"| {t['pass']} | {t['factor']} | {option or 'the config'} | {values} | {kept} |"
+        )
+    return "\n".join(lines)
+
+
+@stage_main("tune")
+def main(cfg: DictConfig) -> None:
+    study = to_dict(cfg.study)
+    if study["objective"] not in OBJECTIVES:
+        raise ValueError(
+            f"conf/study/{study['name']}.yaml: field 'objective': expected one of "
+            f"{sorted(OBJECTIVES)}, got {study['objective']!r}"
+        )
+    max_steps = None if cfg.max_steps is None else int(cfg.max_steps)
+    runs = [tune_run(spec, study["localizer"], max_steps) for spec in study["runs"]]
+    first = runs[0].inputs.trajectory
+    fitted = fit_odometry_alphas(first.odometry, first.truth, first.kidnap_steps)
+    chosen, trials = coordinate_descent(
+        study["factors"], fitted, runs, list(cfg.seeds), study["objective"], int(cfg.passes)
+    )
+    result = {
+        "study": study["name"],
+        "localizer": study["localizer"],
+        "objective": study["objective"],
+        "runs": [run.name for run in runs],
+        "seeds": list(cfg.seeds),
+        "fitted_alphas": list(fitted),
+        "chosen": chosen,
+        "trials": trials,
+    }
+    write_json(Path(cfg.out_path), result)
+    print(trials_markdown(trials))
+    print(json.dumps({k: v for k, v in result.items() if k != "trials"}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,102 @@
+"""Tuning on tune runs (scanloc.stages.tune): coordinate descent keeps exactly the options that
+lower the score, dotted keys reach nested config fields, fitted alphas are scaled, and the
+command runs a study end to end on a small run."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from scanloc.localize.kinds import LocalizeInputs
+from scanloc.stages import tune
+from scanloc.trajectory.drive import drive_trajectory
+from scanloc.trajectory.format import Trajectory, save_trajectory
+from scanloc.world.map_server import save_map
+from small_world import SPEC, small_map, ug01_scans
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_dotted_keys_and_fitted_alphas() -> None:
+    config = {"a": 1, "proposal": {"share": 0.1, "k": 3}}
+    changed = tune.with_keys(config, {"proposal.share": 0.5, "b": 2})
+    assert changed == {"a": 1, "b": 2, "proposal": {"share": 0.5, "k": 3}}
+    assert config["proposal"]["share"] == 0.1  # the original is left alone
+    assert tune.get_key(changed, "proposal.k") == 3 and tune.get_key(changed, "x.y") is None
+    keys = tune.resolve_option(
+        {"odom_model_type": "diff-corrected", "fitted_alpha_scale": 2.0}, [0.1, 0.2, 0.3, 0.4]
+    )
+    assert keys == {
+        "odom_model_type": "diff-corrected",
+        "odom_alpha1": 0.2, "odom_alpha2": 0.4, "odom_alpha3": 0.6, "odom_alpha4": 0.8,
+    }  # fmt: skip
+
+
+def test_coordinate_descent_keeps_only_what_lowers_the_score(monkeypatch) -> None:
+    def toy(config: Mapping[str, Any], inputs: Any) -> dict[str, float]:
+        return {"score": abs(config["a"] - 3) + config["b"]["c"] + 0.0 * config["seed"]}
+
+    monkeypatch.setitem(tune.OBJECTIVES, "toy", toy)
+    run = tune.TuneRun("r", None, {"a": 0, "b": {"c": 1}})  # type: ignore[arg-type]
+    factors = {
+        "a": [{"a": 0}, {"a": 3}, {"a": 5}],
+        "c": [{"b.c": 1}, {"b.c": 0}, {"b.c": 2}],
+    }
+    chosen, trials = tune.coordinate_descent(factors, [0, 0, 0, 0], [run], [0, 1], "toy", passes=3)
+    assert chosen == {"a": 3, "b.c": 0}
+    assert [(t["factor"], t["option"], t["kept"]) for t in trials] == [
+        ("start", {}, True),
+        ("a", {"a": 3}, True),
+        ("a", {"a": 5}, False),
+        ("c", {"b.c": 0}, True),
+        ("c", {"b.c": 2}, False),
+        # the second sweep keeps nothing, so there is no third
+        ("a", {"a": 0}, False),
+        ("a", {"a": 5}, False),
+        ("c", {"b.c": 1}, False),
+        ("c", {"b.c": 2}, False),
+    ]
+    assert trials[3]["score"] == 0.0 and sorted(trials[0]["runs"]) == ["r/s0", "r/s1"]
+
+
+def test_tracking_cuts_a_run_at_its_kidnaps() -> None:
+    traj = Trajectory(
+        times=np.arange(6.0), truth=np.zeros((6, 3)), odometry=np.zeros((6, 3)), kidnap_steps=(2, 5)
+    )
+    inputs = LocalizeInputs(traj, np.zeros((6, 4), np.float32), Path("m.yaml"), SPEC)
+    assert [len(p.trajectory.truth) for p in tune.stretches(inputs)] == [2, 3, 1]
+
+
+def test_the_command_runs_a_study(tmp_path: Path) -> None:
+    grid = small_map()
+    save_map(grid, tmp_path / "map" / "map.yaml")
+    traj = drive_trajectory(grid, 30, seed=1, clearance=0.25)
+    save_trajectory(traj, tmp_path / "run", ug01_scans(grid, traj.truth, seed=2), meta={})
+    map_yaml = tmp_path / "map" / "map.yaml"
+    runs = f"[{{run_dir: {tmp_path / 'run'}, map_name: small, map_yaml: {map_yaml}}}]"
+    cmd = [sys.executable, "-m", "scanloc.stages.tune", "study=amcl_real", f"study.runs={runs}"]
+    cmd += [
+        "seeds=[0]",
+        "passes=1",
+        f"out_path={tmp_path / 'out.json'}",
+        f"hydra.run.dir={tmp_path / 'h'}",
+    ]
+    env = os.environ | {"PYTHONPATH": str(REPO / "src")}
+    done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["study"] == "amcl_real" and result["runs"] == ["run/wheel"]
+    trials = json.loads((tmp_path / "out.json").read_text())["trials"]
+    # every option but each factor's current one is tried once: 19 options of 7 factors
+    assert len(trials) == 1 + 19 - 7 and trials[0]["factor"] == "start"
+    assert all(t["pos_err_rmse_m"] < 0.5 for t in trials)  # amcl tracks the small room
+    with pytest.raises(KeyError):
+        trials[0]["steps_to_converge"]  # the tracking objective's figures only
