@@ -48,12 +48,12 @@ SEEDS_LEGEND = (
     "(seeds for convergence, all kidnaps pooled for recovery); worst = the slowest seed or "
     "kidnap, '≥' where one never converged within its stretch (a censored count); re-losses "
     "and false convergences summed over the runs ('–': no covariance to be confident with). "
-    "Tuning: the tune set (<map>_tune_kidnap: its own seed and kidnap times, conf/seeds.yaml "
-    "`tune`) is where the hybrid's and the learned localizers' settings are to be chosen; "
-    "they have not been re-chosen there yet. One setting was chosen on a run this table "
-    "scores: the hybrid's kidnap_probability 0.1, on map 2's <map>_kidnap run (seed 0 of the "
-    "evaluation set; conf/localizer/hybrid.yaml). The amcl baselines keep ROS's or the "
-    "matched settings; hybrid_adaptive keeps its module defaults."
+    "Tuning: the hybrid's proposal settings were chosen on the tune set only (<map>_tune_kidnap: "
+    "its own seed and kidnap times, conf/seeds.yaml `tune`; `python -m scanloc.stages.tune "
+    "study=hybrid`, the figures in conf/localizer/hybrid.yaml), never on the runs this table "
+    "scores; its ablations inherit them. The amcl baselines keep ROS's or the matched "
+    "settings; hybrid_adaptive's switching threshold and the learned localizer's training "
+    "keep their defaults (not tuned)."
 )
 
 
