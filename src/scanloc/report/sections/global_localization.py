@@ -48,12 +48,12 @@ SEEDS_LEGEND = (
     "(seeds for convergence, all kidnaps pooled for recovery); worst = the slowest seed or "
     "kidnap, '≥' where one never converged within its stretch (a censored count); re-losses "
     "and false convergences summed over the runs ('–': no covariance to be confident with). "
-    "Tuning: the hybrid's proposal settings were chosen on the tune set only (<map>_tune_kidnap: "
-    "its own seed and kidnap times, conf/seeds.yaml `tune`; `python -m scanloc.stages.tune "
-    "study=hybrid`, the figures in conf/localizer/hybrid.yaml), never on the runs this table "
-    "scores; its ablations inherit them. The amcl baselines keep ROS's or the matched "
-    "settings; hybrid_adaptive's switching threshold and the learned localizer's training "
-    "keep their defaults (not tuned)."
+    "Tuning: the hybrid's proposal and hybrid_adaptive's switch were chosen on the tune set "
+    "only (<map>_tune_kidnap: its own seed and kidnap times, conf/seeds.yaml `tune`; `python -m "
+    "scanloc.stages.tune study=hybrid` and `study=hybrid_adaptive`, the figures in their "
+    "conf/localizer files), never on the runs this table scores; the ablations inherit the "
+    "hybrid's. The amcl baselines keep ROS's or the matched settings; the learned localizer's "
+    "training keeps its defaults (not tuned)."
 )
 
 
