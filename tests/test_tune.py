@@ -30,7 +30,7 @@ def test_dotted_keys_and_fitted_alphas() -> None:
     changed = tune.with_keys(config, {"proposal.share": 0.5, "b": 2})
     assert changed == {"a": 1, "b": 2, "proposal": {"share": 0.5, "k": 3}}
     assert config["proposal"]["share"] == 0.1  # the original is left alone
-    assert tune.get_key(changed, "proposal.k") == 3 and tune.get_key(changed, "x.y") is None
+    assert tune.with_keys(config, {"x.y": 1})["x"] == {"y": 1}  # missing parents are made
     keys = tune.resolve_option(
         {"odom_model_type": "diff-corrected", "fitted_alpha_scale": 2.0}, [0.1, 0.2, 0.3, 0.4]
     )
@@ -72,7 +72,11 @@ def test_tracking_cuts_a_run_at_its_kidnaps() -> None:
         times=np.arange(6.0), truth=np.zeros((6, 3)), odometry=np.zeros((6, 3)), kidnap_steps=(2, 5)
     )
     inputs = LocalizeInputs(traj, np.zeros((6, 4), np.float32), Path("m.yaml"), SPEC)
-    assert [len(p.trajectory.truth) for p in tune.stretches(inputs)] == [2, 3, 1]
+    pieces = tune.stretches(inputs)
+    assert [len(p.trajectory.truth) for p in pieces] == [2, 3, 1]
+    assert [p.trajectory.times[0] for p in pieces] == [0.0, 2.0, 5.0]
+    assert all(p.trajectory.kidnap_steps == () for p in pieces)
+    assert tune.steps_of(inputs, 0, 4).trajectory.kidnap_steps == (2,)  # re-based, kept inside
 
 
 def test_the_command_runs_a_study(tmp_path: Path) -> None:

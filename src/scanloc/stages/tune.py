@@ -64,16 +64,6 @@ class TuneRun:
     localizer: dict[str, Any]
 
 
-def get_key(config: Mapping[str, Any], dotted: str) -> Any:
-    """config["a"]["b"] for "a.b" (None when absent)."""
-    node: Any = config
-    for part in dotted.split("."):
-        if not isinstance(node, Mapping) or part not in node:
-            return None
-        node = node[part]
-    return node
-
-
 def with_keys(config: Mapping[str, Any], keys: Mapping[str, Any]) -> dict[str, Any]:
     """A copy of `config` with the dotted `keys` set (nested mappings copied, not shared)."""
     out = json.loads(json.dumps(config))
@@ -96,23 +86,24 @@ def resolve_option(option: Mapping[str, Any], fitted: Sequence[float]) -> dict[s
     return keys
 
 
+def steps_of(inputs: LocalizeInputs, start: int, stop: int) -> LocalizeInputs:
+    """Steps [start, stop) of a run as a run of their own (kidnap steps inside it re-based)."""
+    traj = inputs.trajectory
+    laser = None if traj.laser_odometry is None else traj.laser_odometry[start:stop]
+    piece = Trajectory(
+        times=traj.times[start:stop], truth=traj.truth[start:stop],
+        odometry=traj.odometry[start:stop], laser_odometry=laser,
+        kidnap_steps=tuple(k - start for k in traj.kidnap_steps if start < k < stop),
+    )  # fmt: skip
+    return LocalizeInputs(
+        piece, inputs.ranges[start:stop], inputs.map_yaml, inputs.laser, inputs.laser_mount
+    )
+
+
 def stretches(inputs: LocalizeInputs) -> list[LocalizeInputs]:
     """The run cut at its kidnap steps: each stretch tracked from its own first true pose."""
-    traj = inputs.trajectory
-    bounds = [0, *traj.kidnap_steps, len(traj.truth)]
-    pieces = []
-    for a, b in itertools.pairwise(bounds):
-        laser = None if traj.laser_odometry is None else traj.laser_odometry[a:b]
-        piece = Trajectory(
-            times=traj.times[a:b], truth=traj.truth[a:b], odometry=traj.odometry[a:b],
-            laser_odometry=laser,
-        )  # fmt: skip
-        pieces.append(
-            LocalizeInputs(
-                piece, inputs.ranges[a:b], inputs.map_yaml, inputs.laser, inputs.laser_mount
-            )
-        )
-    return pieces
+    bounds = [0, *inputs.trajectory.kidnap_steps, len(inputs.trajectory.truth)]
+    return [steps_of(inputs, a, b) for a, b in itertools.pairwise(bounds)]
 
 
 def tracking_score(config: Mapping[str, Any], inputs: LocalizeInputs) -> dict[str, float]:
@@ -186,13 +177,13 @@ def coordinate_descent(
     which option of an earlier one is best)."""
     base = runs[0].localizer
     chosen: dict[str, Any] = {}
-    scored: dict[str, dict[str, Any]] = {}  # a configuration met again is not run again
+    scored: dict[str, dict[str, Any]] = {}  # by the whole config: none is run twice
 
     def score(keys: dict[str, Any]) -> dict[str, Any]:
-        key = json.dumps({k: keys.get(k, get_key(base, k)) for k in sorted(keys)}, sort_keys=True)
-        if key not in scored:
-            scored[key] = score_trial(keys, runs, seeds, objective)
-        return scored[key]
+        config = json.dumps(with_keys(base, keys), sort_keys=True)
+        if config not in scored:
+            scored[config] = score_trial(keys, runs, seeds, objective)
+        return scored[config]
 
     best = score(chosen)
     trials = [{"factor": "start", "option": {}, "pass": 0, **best, "kept": True}]
@@ -201,8 +192,7 @@ def coordinate_descent(
         for factor, options in factors.items():
             for option in options:
                 keys = resolve_option(option, fitted)
-                current = {k: chosen.get(k, get_key(base, k)) for k in keys}
-                if current == keys:
+                if with_keys(base, chosen | keys) == with_keys(base, chosen):
                     continue  # the current setting: already scored
                 result = score(chosen | keys)
                 kept = result["score"] < best["score"]
@@ -221,14 +211,6 @@ def tune_run(spec: Mapping[str, Any], localizer: str, max_steps: int | None) -> 
     the localizer composed for its map as the localize stage composes it."""
     run_dir = Path(spec["run_dir"])
     traj, ranges = load_trajectory(run_dir)
-    if max_steps is not None:
-        laser = None if traj.laser_odometry is None else traj.laser_odometry[:max_steps]
-        traj = Trajectory(
-            times=traj.times[:max_steps], truth=traj.truth[:max_steps],
-            odometry=traj.odometry[:max_steps], laser_odometry=laser,
-            kidnap_steps=tuple(k for k in traj.kidnap_steps if k < max_steps),
-        )  # fmt: skip
-        ranges = ranges[:max_steps]
     odometry = str(spec.get("odometry", "wheel"))
     sensor_file = Path(
         spec.get("sensor_file") or Path(conf_dir()) / "sensor" / f"{DEFAULT_SENSOR}.yaml"
@@ -240,6 +222,8 @@ def tune_run(spec: Mapping[str, Any], localizer: str, max_steps: int | None) -> 
     inputs = LocalizeInputs(
         select_odometry(traj, odometry, run_dir), ranges, map_yaml, spec_laser, laser_mount(run_dir)
     )
+    if max_steps is not None:
+        inputs = steps_of(inputs, 0, max_steps)
     return TuneRun(f"{run_dir.name}/{odometry}", inputs, composed)
 
 
