@@ -13,11 +13,13 @@ model.pt, from `dvc repro train_scanlocnet@sparse_obstacles`) when it exists, el
 one of conf/scanlocnet.yaml's architecture. An untrained network decodes more slowly (its
 branch and bound prunes little), so its figures are a worst case; the JSON names which ran.
 
-Two hybrids: the constant share (`mixture_share` of particles from the proposal, and so the
-network, on every update) and the adaptive one (hybrid.py's adaptive mixing: the network runs
-only on updates whose share is > 0, so its cost is amortised); on this clean drive from a known
-pose the adaptive one should not need the network at all. Each reports the share of updates
-that ran the network; its Hz include the network's cost where it ran.
+Two hybrids, with the proposal settings conf/localizer ships (hybrid.yaml's `proposal`, and
+hybrid_adaptive.yaml's over it): the constant share (`mixture_share` of particles from the
+proposal, and so the network, on every update) and the adaptive one (hybrid.py's adaptive
+mixing: the network runs only on updates whose share is > 0, so its cost is amortised); on this
+clean drive from a known pose the adaptive one should not need the network at all. Each
+reports the share of updates that ran the network; its Hz include the network's cost where it
+ran.
 
 Run: python benchmarks/hybrid.py [--quick] [--model PATH]. Last line: JSON.
 """
@@ -74,6 +76,20 @@ def untrained_model(grid, spec: LaserSpec, path: Path) -> Path:
     return path
 
 
+def shipped_hybrids() -> dict[str, HybridParams]:
+    """The two hybrids' proposal settings as conf/localizer ships them."""
+
+    def proposal(name: str) -> dict:
+        path = ROOT / "conf" / "localizer" / f"{name}.yaml"
+        return yaml.safe_load(path.read_text())["proposal"]
+
+    constant = proposal("hybrid")
+    return {
+        "hybrid": HybridParams.from_config(constant),
+        "adaptive_hybrid": HybridParams.from_config(constant | proposal("hybrid_adaptive")),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a fast smoke run")
@@ -109,10 +125,7 @@ def main() -> None:
         key = f"{n // 1000}k"
         figures[f"amcl_hz_{key}"] = round(1.0 / plain_s, 1)
         config = MclConfig.from_ros(params | {"publish_every_update": True}, source="benchmark")
-        for label, hybrid in (
-            ("hybrid", HybridParams()),
-            ("adaptive_hybrid", HybridParams(adaptive_mixing=True)),
-        ):
+        for label, hybrid in shipped_hybrids().items():
             proposal = LearnedProposal(hypotheses_of, UniformProposal(grid), hybrid)
             weighting = ImportanceWeights(proposal, hybrid)
             filter_ = build_filter(grid, spec, config, 0, proposal=proposal, weighting=weighting)
