@@ -37,13 +37,17 @@ from scanloc.real.carmen import read_carmen_log
 from scanloc.real.carmen_laser import clean_ranges
 from scanloc.real.carmen_odometry import scan_odometry, wrap_logged_headings
 from scanloc.real.log_mapping import build_map_from_log
+from scanloc.trajectory.laser_odometry import laser_odometry
 
 log = read_carmen_log(sys.argv[1])
 stream = log.front
 truth = stream.laser_poses.astype(np.float64)
 truth[:, 2] = wrap_logged_headings(truth[:, 2])
 out["truth"] = digest(truth)
-out["odometry"] = digest(scan_odometry(log, "front"))
+wheel = scan_odometry(log, "front")
+out["odometry"] = digest(wheel)
+laser, _ = laser_odometry(stream.ranges[:300], stream.beam_angles(), 50.0, wheel[:300])
+out["laser_odometry"] = digest(laser)
 ranges = clean_ranges(stream.ranges[:600], 50.0)
 hits = np.where(ranges < 50.0, ranges, np.float32(np.nan))
 grid = build_map_from_log(truth[:600], hits, stream.beam_angles(), 50.0, 0.05, 1.0)

@@ -175,6 +175,37 @@ def _calibration(table: pd.DataFrame, valid: np.ndarray, error: np.ndarray) -> d
     return {"calib_within_1sigma": _share(d2 <= 1.0), "calib_within_2sigma": _share(d2 <= 4.0)}
 
 
+CALIBRATION_BINS = 10
+
+
+def reliability_bins(
+    scores: np.ndarray, hits: np.ndarray, bins: int = CALIBRATION_BINS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per equal-width score bin over [0, 1]: (count, mean score, share of hits); NaN where
+    a bin is empty. The reliability diagram plots the last against the second."""
+    scores = np.clip(np.asarray(scores, dtype=np.float64), 0.0, 1.0)
+    hits = np.asarray(hits, dtype=np.float64)
+    index = np.minimum((scores * bins).astype(int), bins - 1)
+    count = np.bincount(index, minlength=bins).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        confidence = np.bincount(index, scores, minlength=bins) / count
+        accuracy = np.bincount(index, hits, minlength=bins) / count
+    return count, confidence, accuracy
+
+
+def expected_calibration_error(
+    scores: np.ndarray, hits: np.ndarray, bins: int = CALIBRATION_BINS
+) -> float:
+    """Σ_bins (n_b / N)·|hit rate_b - mean score_b| over equal-width bins (Guo et al. 2017):
+    0 when a score of p is right a share p of the time."""
+    count, confidence, accuracy = reliability_bins(scores, hits, bins)
+    if count.sum() == 0:
+        return float("nan")
+    filled = count > 0
+    gap = np.abs(accuracy[filled] - confidence[filled])
+    return float((count[filled] * gap).sum() / count.sum())
+
+
 def first_converged(good: np.ndarray, start: int, stop: int, window: int = CONVERGED_STEPS) -> int:
     """The first step s in [start, stop - window] with good[s : s + window] all True, or -1."""
     run = 0

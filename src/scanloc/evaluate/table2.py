@@ -4,9 +4,11 @@
 and values rounded to 6 significant digits (NaN written as null), so that identical estimates
 give identical bytes. Each method gets Table 2's and the modern metrics, the global-localization,
 kidnap and staying-right metrics, and, for a localizer that writes ranked hypotheses
-(`<method>_hypotheses.npz`), the top-1/5/20 recall. Wall-clock figures (time per scan, setup)
-measure the machine, not the estimates: they stay in the localize stages' unhashed
-reports/localize_timing/ files, which the report reads beside these metrics.
+(`<method>_hypotheses.npz`), the top-1/5/20 recall, and for verified hypotheses (with
+`scores`) the expected calibration error of the top-1's calibrated score (`calibration_ece`).
+Wall-clock figures (time per scan, setup) measure the machine, not the estimates: they stay in
+the localize stages' unhashed reports/localize_timing/ files, which the report reads beside
+these metrics.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import pandas as pd
 
 from scanloc.evaluate.metrics import (
     convergence_metrics,
+    expected_calibration_error,
     localization_metrics,
     read_estimates,
     staying_right_metrics,
@@ -46,10 +49,12 @@ def evaluate_all(
     sources: Mapping[str, str] | None = None,
     kidnap_steps: tuple[int, ...] = (),
     hypotheses: Mapping[str, np.ndarray] | None = None,
+    scores: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Metrics of each localizer; `sources` (method → file) only improves error messages;
-    `hypotheses` (method → (T, K, 3) ranked poses) adds the top-K recall."""
-    sources, hypotheses = sources or {}, hypotheses or {}
+    `hypotheses` (method → (T, K, 3) ranked poses) adds the top-K recall, `scores` (method →
+    (T, K) calibrated probabilities of those hypotheses) the top-1's calibration error."""
+    sources, hypotheses, scores = sources or {}, hypotheses or {}, scores or {}
     out = {}
     for name in ordered_methods(tables):
         metrics = localization_metrics(truth, tables[name], source=sources.get(name, name))
@@ -59,6 +64,10 @@ def evaluate_all(
             for k in RECALL_K:
                 hit = recall_within(hypotheses[name][:, :k], truth)
                 metrics[f"top{k}_recall"] = float(hit.mean())
+        if name in scores:
+            top1_hit = recall_within(hypotheses[name][:, :1], truth)
+            metrics["calibration_ece"] = expected_calibration_error(scores[name][:, 0], top1_hit)
+            metrics["top1_score_mean"] = float(np.mean(scores[name][:, 0]))
         out[name] = metrics
     return out
 
@@ -226,16 +235,26 @@ def read_timings(path: Path) -> dict[str, dict[str, float]]:
     return timings
 
 
-def read_hypotheses(localize_dir: Path, steps: int) -> dict[str, np.ndarray]:
-    """The ranked hypotheses (T, K, 3) of each `<method>_hypotheses.npz` in the folder."""
-    found = {}
+def read_hypotheses(
+    localize_dir: Path, steps: int
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """The ranked hypotheses (T, K, 3) of each `<method>_hypotheses.npz` in the folder, and the
+    calibrated scores (T, K) of those that were verified."""
+    found, scores = {}, {}
     for path in sorted(Path(localize_dir).glob(f"*{HYPOTHESES_SUFFIX}")):
+        name = path.name.removesuffix(HYPOTHESES_SUFFIX)
         with np.load(path) as data:
             poses = data["poses"]
+            if "scores" in data:
+                scores[name] = data["scores"]
         if poses.ndim != 3 or poses.shape[0] != steps or poses.shape[2] != 3:
             raise ValueError(f"{path}: 'poses' must have shape ({steps}, K, 3), got {poses.shape}")
-        found[path.name.removesuffix(HYPOTHESES_SUFFIX)] = poses
-    return found
+        if name in scores and scores[name].shape != poses.shape[:2]:
+            raise ValueError(
+                f"{path}: 'scores' must have shape {poses.shape[:2]}, got {scores[name].shape}"
+            )
+        found[name] = poses
+    return found, scores
 
 
 def load_truth(trajectory_dir: Path) -> tuple[np.ndarray, tuple[int, ...]]:
@@ -268,11 +287,14 @@ def evaluate_trajectory(
         )
     tables = {name: read_estimates(path) for name, path in paths.items()}
     hypotheses: dict[str, np.ndarray] = {}
+    scores: dict[str, np.ndarray] = {}
     for folder in localize_dirs:
         if folder.is_dir():
-            hypotheses |= read_hypotheses(folder, len(truth))
+            poses, verified = read_hypotheses(folder, len(truth))
+            hypotheses |= poses
+            scores |= verified
     sources = {name: str(path) for name, path in paths.items()}
-    return evaluate_all(truth, tables, sources, kidnaps, hypotheses)
+    return evaluate_all(truth, tables, sources, kidnaps, hypotheses, scores)
 
 
 def evaluate_runs(

@@ -17,12 +17,19 @@ from typing import Any
 
 import numpy as np
 
+from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.estimates import Localization, table_covariances, table_poses
 from scanloc.localize.cnn_localizer import localize_cnn
 from scanloc.localize.fusion import FusionParams, fuse_odometry
 from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal
 from scanloc.localize.hypothesis_tracker import TrackerParams, track_hypotheses
-from scanloc.localize.learned_localizer import localize_learned, scan_hypotheses
+from scanloc.localize.hypothesis_verification import HypothesisVerifier, VerifierParams
+from scanloc.localize.learned_localizer import (
+    fit_calibration,
+    localize_learned,
+    scan_hypotheses,
+    verified,
+)
 from scanloc.localize.mcl.config import MclConfig, build_filter, run_mcl
 from scanloc.localize.mcl.filter import run_filter
 from scanloc.localize.mcl.proposals import UniformProposal
@@ -32,7 +39,17 @@ from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import OccupancyGrid
 
 # Keys of a hybrid config beside amcl's parameters: the learned model and its proposal.
-HYBRID_KEYS = ("model", "k", "k_raw", "nms_distance", "nms_angle_deg", "proposal")
+HYBRID_KEYS = (
+    "model",
+    "k",
+    "k_raw",
+    "nms_distance",
+    "nms_angle_deg",
+    "verify",
+    "calibration_scans",
+    "calibration_count",
+    "proposal",
+)
 
 Kind = Callable[[Mapping[str, Any], "LocalizeInputs"], Localization]
 LOCALIZER_KINDS: dict[str, Kind] = {}
@@ -120,7 +137,7 @@ def run_hybrid_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localizat
     hybrid = HybridParams.from_config(dict(cfg["proposal"]))
     grid = inputs.grid
     config = MclConfig.from_ros({k: v for k, v in cfg.items() if k not in HYBRID_KEYS})
-    _, hypotheses_of, _ = scan_hypotheses(Path(cfg["model"]), inputs.ranges, **learned_options(cfg))
+    hypotheses_of, _ = learned_hypotheses(cfg, inputs)
     uniform = UniformProposal(grid, config.map_half_cell_offset)
     proposal = LearnedProposal(hypotheses_of, uniform, hybrid)
     weighting = ImportanceWeights(proposal, hybrid)
@@ -173,12 +190,35 @@ def learned_options(cfg: Mapping[str, Any]) -> dict[str, Any]:
     return {key: cfg[key] for key in keys if key in cfg}
 
 
+def learned_hypotheses(
+    cfg: Mapping[str, Any], inputs: LocalizeInputs
+) -> tuple[Callable[[np.ndarray], Any], float]:
+    """(per-scan hypotheses function, setup seconds) of a config with a learned model: its
+    ranked hypotheses, verified against the map when the config has a `verify` section (the
+    calibration fitted on `calibration_count` of the `calibration_scans` dataset's validation
+    scans, evenly spaced: scans no evaluation scores)."""
+    start = time.perf_counter()
+    _, hypotheses_of, _ = scan_hypotheses(Path(cfg["model"]), inputs.ranges, **learned_options(cfg))
+    if not cfg.get("verify"):
+        return hypotheses_of, time.perf_counter() - start
+    verifier = HypothesisVerifier(
+        inputs.grid, inputs.laser, VerifierParams.from_config(dict(cfg["verify"]))
+    )
+    data = load_scan_dataset(cfg["calibration_scans"])
+    val = data.val_idx
+    pick = val[np.unique(np.linspace(0, len(val) - 1, int(cfg["calibration_count"])).astype(int))]
+    verifier.calibration, _ = fit_calibration(
+        hypotheses_of, verifier, np.asarray(data.ranges[pick]), data.poses[pick]
+    )
+    return verified(hypotheses_of, verifier), time.perf_counter() - start
+
+
 @register_kind("learned")
 def run_learned_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
-    """scanloc's learned localizer: ranked hypotheses from each scan alone."""
-    return localize_learned(
-        Path(cfg["model"]), inputs.ranges, inputs.trajectory.times, **learned_options(cfg)
-    )
+    """scanloc's learned localizer: ranked hypotheses from each scan alone (verified against
+    the map when the config has `verify`)."""
+    hypotheses_of, setup_s = learned_hypotheses(cfg, inputs)
+    return localize_learned(hypotheses_of, setup_s, inputs.ranges, inputs.trajectory.times)
 
 
 @register_kind("learned_tracking")

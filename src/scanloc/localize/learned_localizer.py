@@ -6,17 +6,26 @@ non-maximum suppression (a hypothesis within `nms_distance` m and `nms_angle_deg
 one of the same scan adds its weight to it and is dropped), keeping the `k` best. The per-step
 table holds the best hypothesis with its predicted (diagonal) covariance; all k go to the
 hypotheses side file for the top-K recall and for localizers built on them.
+
+With a `verifier` (localize.hypothesis_verification) each scan's hypotheses are refined against
+the map, scored and re-ranked; `fit_calibration` fits the verifier's calibrated probability on
+scans that are never scored (the map's validation scans), and the side file then also holds
+each hypothesis' `scores`.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from scanloc.estimates import Localization, estimate_table
+from scanloc.localize.hypothesis_verification import HypothesisVerifier
+from scanloc.localize.score_calibration import ScoreCalibration
+from scanloc.pose import RECALL_ANGLE_DEG, RECALL_DISTANCE_M, wrap_angle
 
 
 def scan_hypotheses(
@@ -44,19 +53,53 @@ def scan_hypotheses(
     return model, localize, time.perf_counter() - start
 
 
+def verified(hypotheses_of: Callable, verifier: HypothesisVerifier) -> Callable:
+    """The per-scan hypotheses function with every scan's hypotheses verified."""
+    return lambda scan: verifier.verify(scan, hypotheses_of(scan))
+
+
+def fit_calibration(
+    localize, verifier: HypothesisVerifier, ranges: np.ndarray, poses: np.ndarray
+) -> tuple[ScoreCalibration, dict[str, float]]:
+    """The verifier's calibration fitted on scans with known poses: every (unverified)
+    hypothesis of every scan, labelled by whether it lies within the recall thresholds of the
+    truth after refinement; also how many scans and hypotheses it saw."""
+    features, hits = [], []
+    for scan, truth in zip(ranges, poses, strict=True):
+        hyp = localize(scan)
+        real = hyp.weights[0] > 0
+        refined, feats = verifier.features(scan, hyp.poses[0][real], hyp.weights[0][real])
+        close = np.hypot(refined[:, 0] - truth[0], refined[:, 1] - truth[1]) <= RECALL_DISTANCE_M
+        turn = np.degrees(np.abs(wrap_angle(refined[:, 2] - truth[2]))) <= RECALL_ANGLE_DEG
+        features.append(feats)
+        hits.append(close & turn)
+    features_all, hits_all = np.concatenate(features), np.concatenate(hits)
+    if hits_all.all() or not hits_all.any():
+        raise ValueError(
+            f"calibration needs right and wrong hypotheses: all {len(hits_all)} on "
+            f"{len(ranges)} scans were {'right' if hits_all.all() else 'wrong'}"
+        )
+    summary = {
+        "calibration_scans": len(ranges),
+        "calibration_hypotheses": len(hits_all),
+        "calibration_hit_rate": float(hits_all.mean()),
+    }
+    return ScoreCalibration.fit(features_all, hits_all), summary
+
+
 def localize_learned(
-    model_path: Path, ranges: np.ndarray, times: np.ndarray, **options: float
+    hypotheses_of: Callable, setup_s: float, ranges: np.ndarray, times: np.ndarray
 ) -> Localization:
-    """The learned localizer on every scan of a trajectory (see the module docstring)."""
+    """The learned localizer (`hypotheses_of`, from scan_hypotheses, maybe `verified`) on every
+    scan of a trajectory (see the module docstring)."""
     ranges = np.asarray(ranges, dtype=np.float32)
     if ranges.ndim != 2 or ranges.shape[0] < 1:
         raise ValueError(f"ranges must have shape (T >= 1, beams), got {ranges.shape}")
-    _, localize, setup_s = scan_hypotheses(Path(model_path), ranges, **options)
     steps = ranges.shape[0]
     rows, seconds = [], np.empty(steps)
     for step in range(steps):
         tick = time.perf_counter()
-        rows.append(localize(ranges[step]))
+        rows.append(hypotheses_of(ranges[step]))
         seconds[step] = time.perf_counter() - tick
     poses = np.concatenate([h.poses for h in rows])
     weights = np.concatenate([h.weights for h in rows])
@@ -65,4 +108,6 @@ def localize_learned(
     cov[:, [0, 1, 2], [0, 1, 2]] = stds[:, 0] ** 2
     table = estimate_table(np.arange(steps), times, poses[:, 0], cov, poses.shape[1])
     hypotheses = {"poses": poses, "weights": weights, "stds": stds}
+    if rows[0].scores is not None:
+        hypotheses["scores"] = np.concatenate([h.scores for h in rows])
     return Localization(table, setup_s, seconds, hypotheses=hypotheses)

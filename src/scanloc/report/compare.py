@@ -38,8 +38,8 @@ from scanloc.report.render.document import (
 
 BEST_MARK = "★"
 # Which way is better, by headline key prefix (summary.py); claims_* counts are not marked.
-LOWER_IS_BETTER = ("pos_", "lost_", "conv_", "rec_", "t1_", "real_rmse_")
-HIGHER_IS_BETTER = ("top5_", "real_top5_")
+LOWER_IS_BETTER = ("pos_", "lost_", "conv_", "rec_", "t1_", "real_rmse_", "ece_", "real_ece_")
+HIGHER_IS_BETTER = ("top5_", "real_top5_", "vtop1_", "real_vtop1_")
 MISSING = "—"
 
 

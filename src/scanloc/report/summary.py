@@ -10,9 +10,12 @@ terminal (README, "Experiments"):
 - `rec_<localizer>`: the longest recovery after a kidnap on the map-1 kidnap run
   (amcl_recovery, hybrid; a kidnap never recovered counts its whole stretch, see
   evaluate/metrics.py);
-- `top5_<map>`: the learned localizer's top-5 recall on each map's drive;
-- `real_rmse_<log>` / `real_top5_<log>`: on each real log (params.yaml `real_logs`), tracking
-  amcl's position RMSE [m] and the learned localizer's top-5 recall on the real scans;
+- `top5_<map>`: the learned localizer's top-5 recall on each map's drive; `vtop1_<map>` /
+  `ece_<map>`: its verified top-1 recall (scanlocnet_verified) and that score's expected
+  calibration error;
+- `real_rmse_<log>` / `real_top5_<log>` / `real_vtop1_<log>` / `real_ece_<log>`: on each real
+  log (params.yaml `real_logs`), tracking amcl's position RMSE [m] and the learned localizer's
+  top-5 recall, verified top-1 recall and calibration error on the real scans;
 - `claims_<verdict>`: how many of the paper's claims got each verdict;
 - `wall_s`: the pipeline's total stage time (from reports/timing/).
 All values are rounded to 4 significant digits; a missing one is null.
@@ -68,10 +71,16 @@ def headline_metrics(
     for name in maps:
         learned = localization.get(f"{name}_drive", {}).get("scanlocnet", {})
         out[f"top5_{name}"] = _round(learned.get("top5_recall"))
+        verified = localization.get(f"{name}_drive", {}).get("scanlocnet_verified", {})
+        out[f"vtop1_{name}"] = _round(verified.get("top1_recall"))
+        out[f"ece_{name}"] = _round(verified.get("calibration_ece"))
     for name in real_logs:
         real = localization.get(f"{name}_real", {})
         out[f"real_rmse_{name}"] = _round(real.get("amcl", {}).get("pos_err_rmse_m"))
         out[f"real_top5_{name}"] = _round(real.get("scanlocnet", {}).get("top5_recall"))
+        verified = real.get("scanlocnet_verified", {})
+        out[f"real_vtop1_{name}"] = _round(verified.get("top1_recall"))
+        out[f"real_ece_{name}"] = _round(verified.get("calibration_ece"))
     for verdict in VERDICTS:
         key = "claims_" + verdict.replace(" ", "_")
         out[key] = sum(1 for claim in claims if claim.verdict == verdict)

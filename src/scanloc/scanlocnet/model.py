@@ -133,11 +133,14 @@ class Hypotheses:
         poses: (N, K, 3) x, y, θ.
         weights: (N, K) joint probabilities p(cell, bin | scan), best first.
         stds: (N, K, 3) predicted standard deviations of x [m], y [m], θ [rad].
+        scores: (N, K) after verification against the map (localize.hypothesis_verification),
+            the calibrated probability that each hypothesis is right, best first; else None.
     """
 
     poses: np.ndarray
     weights: np.ndarray
     stds: np.ndarray
+    scores: np.ndarray | None = None
 
     def covariances(self) -> np.ndarray:
         """(N, K, 3, 3) diagonal covariances."""

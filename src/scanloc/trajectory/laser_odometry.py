@@ -36,6 +36,7 @@ the base increment u gives the laser increment mount⁻¹ ⊕ u ⊕ mount, and b
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,14 +86,18 @@ def scan_points(
     `extrude_m` > 0 three copies at z = -h, 0, +h (3M, 3): the scan as a wall (module doc)."""
     keep = (ranges > 0) & (ranges < range_max) & np.isfinite(ranges)
     r, a = ranges[keep].astype(np.float64), angles[keep]
-    flat = np.column_stack([r * np.cos(a), r * np.sin(a), np.zeros(len(r))])
+    # libm's scalar cos/sin, not numpy's vector ones: those take AVX-512 paths on CPUs that have
+    # them and differ in the last bits, which the registration turns into other bytes.
+    cos_a = np.array([math.cos(v) for v in a])
+    sin_a = np.array([math.sin(v) for v in a])
+    flat = np.column_stack([r * cos_a, r * sin_a, np.zeros(len(r))])
     if extrude_m <= 0:
         return flat
     return np.concatenate([flat + np.array([0.0, 0.0, z]) for z in (-extrude_m, 0.0, extrude_m)])
 
 
 def _matrix(u: np.ndarray) -> np.ndarray:
-    c, s = np.cos(u[2]), np.sin(u[2])
+    c, s = math.cos(u[2]), math.sin(u[2])
     m = np.eye(4)
     m[:2, :2] = [[c, -s], [s, c]]
     m[:2, 3] = u[:2]
@@ -119,7 +124,7 @@ def register(
         num_threads=1,
     )
     t = np.asarray(result.T_target_source)
-    found = np.array([t[0, 3], t[1, 3], np.arctan2(t[1, 0], t[0, 0])])
+    found = np.array([t[0, 3], t[1, 3], math.atan2(t[1, 0], t[0, 0])])
     moved = found - seed
     if (
         not result.converged
