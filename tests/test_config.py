@@ -540,7 +540,7 @@ def config_outputs(config_name: str, cfg: dict[str, Any]) -> list[str]:
     if config_name == "report":
         return [f"{cfg['out_dir']}/report.html", f"{cfg['out_dir']}/report.md"]
     keys = ("out_dir", "out_path", "metrics_path", "table2_path", "table2_dir")
-    return [cfg[k] for k in keys if k in cfg]
+    return [cfg[k] for k in keys if cfg.get(k) is not None]  # null: not written
 
 
 @pytest.mark.parametrize("trainer", TRAINERS)
@@ -616,6 +616,7 @@ def test_dvc_stage_list_is_the_contract():
         "real",
         "real_valscans",
         "real_train",
+        "real_ablation",
         "real_localize",
         "localize_seeds",
         "evaluate",
@@ -635,6 +636,8 @@ def test_dvc_stage_list_is_the_contract():
     logs = set(params["real_logs"])
     assert "intel" in logs  # the real-data evaluation runs by default on the intel log
     assert expansions("real") == logs == expansions("real_valscans") == expansions("real_train")
+    variants = ("no_return", "short", "long", "noise", "all")
+    assert expansions("real_ablation") == {f"{log}-{v}" for log in logs for v in variants}
     runs = ("real", "sim", "kidnap")
     assert expansions("real_localize") == {f"{log}-{r}" for log in logs for r in runs}
     seed_runs = {f"{log}-{r}-{o}" for log in logs for r in ("real", "kidnap") for o in ODOMETRY}

@@ -2,11 +2,13 @@
 
 The learned localizer trains on scans it never saw before: each epoch, `scans_per_epoch` poses
 are drawn uniformly over the map's free space (with the robot's clearance) and scanned with the
-same simulator and noise model as the `scans` stage. Epoch e's scans depend only on (seed, e):
-poses from the stream SeedSequence(seed, spawn_key=(e, 0)), the noise of each block of
-NOISE_BLOCK scans from SeedSequence(seed, spawn_key=(e, 1, block)), so the same params give
-the same bytes however the work is timed, and a training resumed at epoch e needs no state of
-the stream but e.
+same simulator and noise model as the `scans` stage, and, for a real laser, with its measured
+corruptions (scanloc.sensor.corruptions: no returns, short and long readings, heavy-tailed
+noise in place of the noise model's). Epoch e's scans depend only on (seed, e): poses from the
+stream SeedSequence(seed, spawn_key=(e, 0)), the noise of each block of NOISE_BLOCK scans from
+SeedSequence(seed, spawn_key=(e, 1, block)), its corruptions from (e, 2, block), so the same
+params give the same bytes however the work is timed, and a training resumed at epoch e needs
+no state of the stream but e.
 
 A worker process (spawned; one numba thread, so that it leaves the cores to training)
 simulates epoch e + 1 into shared memory while the trainer reads epoch e from the other buffer:
@@ -22,7 +24,7 @@ import multiprocessing
 import signal
 import traceback
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from multiprocessing import connection, shared_memory
 from typing import Any
 
@@ -37,7 +39,8 @@ class StreamSpec:
     """Everything the worker needs to simulate an epoch (picklable).
 
     map_yaml: the map (ROS map_server YAML); sensor / noise: conf/sensor and conf/noise
-    mappings; clearance: robot footprint radius (m) kept free; scans_per_epoch; seed.
+    mappings; clearance: robot footprint radius (m) kept free; scans_per_epoch; seed;
+    corruptions: a sensor.corruptions mapping (empty: none).
     """
 
     map_yaml: str
@@ -46,45 +49,59 @@ class StreamSpec:
     clearance: float
     scans_per_epoch: int
     seed: int
+    corruptions: Mapping[str, Any] = field(default_factory=dict)
 
     @property
     def num_beams(self) -> int:
         return int(self.sensor["num_beams"])
 
 
-def _make_simulator(spec: StreamSpec) -> tuple[Any, Any]:
-    """The worker's map and scan simulator, with numba on one thread."""
+def _make_simulator(spec: StreamSpec) -> tuple[Any, Any, Any]:
+    """The worker's map, scan simulator and corruptions, with numba on one thread."""
     import numba
 
-    from scanloc.sensor.noise import noise_from_config
+    from scanloc.sensor.corruptions import corruptions_from_config
+    from scanloc.sensor.noise import NoNoise, noise_from_config
     from scanloc.sensor.simulate import ScanSimulator, laser_spec_from_config
     from scanloc.world.map_server import load_map
 
     numba.set_num_threads(1)
     grid = load_map(spec.map_yaml)
     sensor = dict(spec.sensor)
+    corruptions = corruptions_from_config(dict(spec.corruptions), "the stream's corruptions")
+    noise = NoNoise() if corruptions.adds_noise else noise_from_config(dict(spec.noise))
     simulator = ScanSimulator(
         grid,
         laser_spec_from_config(sensor),
-        noise_from_config(dict(spec.noise)),
+        noise,
         str(sensor.get("mode", "exact")),
         bool(sensor.get("unknown_blocks", False)),
     )
-    return grid, simulator
+    return grid, simulator, corruptions
 
 
-def simulate_epoch(spec: StreamSpec, epoch: int, grid, simulator) -> tuple[np.ndarray, np.ndarray]:
-    """Epoch `epoch`'s (ranges float32 (N, B), poses float64 (N, 3)); see the module doc."""
+def simulate_epoch(
+    spec: StreamSpec, epoch: int, grid, simulator, corruptions=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Epoch `epoch`'s (ranges float32 (N, B), poses float64 (N, 3)); see the module doc.
+    `corruptions`: the spec's, built (default: built here)."""
+    from scanloc.sensor.corruptions import corruptions_from_config
     from scanloc.world.free_space import sample_free_poses
 
+    if corruptions is None:
+        corruptions = corruptions_from_config(dict(spec.corruptions), "the stream's corruptions")
     pose_rng = np.random.default_rng(np.random.SeedSequence(spec.seed, spawn_key=(epoch, 0)))
     poses = sample_free_poses(grid, spec.scans_per_epoch, spec.clearance, pose_rng)
     ranges = np.empty((spec.scans_per_epoch, spec.num_beams), dtype=np.float32)
     cast = simulator.cast(poses)
     for block, start in enumerate(range(0, spec.scans_per_epoch, NOISE_BLOCK)):
         stop = min(start + NOISE_BLOCK, spec.scans_per_epoch)
+        exact = cast[start:stop]
+        if spec.corruptions:
+            seed = np.random.SeedSequence(spec.seed, spawn_key=(epoch, 2, block))
+            exact = corruptions.apply(exact, np.random.default_rng(seed))
         rng = np.random.default_rng(np.random.SeedSequence(spec.seed, spawn_key=(epoch, 1, block)))
-        ranges[start:stop] = simulator.finish(cast[start:stop], rng)
+        ranges[start:stop] = simulator.finish(exact, rng)
     return ranges, poses
 
 
@@ -96,7 +113,7 @@ def _serve(spec: StreamSpec, buffer_names: list[tuple[str, str]], conn: Any) -> 
         signal.signal(stop, signal.SIG_DFL)  # die at once, even inside numba code
     buffers = [tuple(shared_memory.SharedMemory(name=n) for n in pair) for pair in buffer_names]
     try:
-        grid, simulator = _make_simulator(spec)
+        grid, simulator, corruptions = _make_simulator(spec)
     except Exception:
         conn.send((None, traceback.format_exc()))
         return
@@ -104,7 +121,7 @@ def _serve(spec: StreamSpec, buffer_names: list[tuple[str, str]], conn: Any) -> 
         while True:
             epoch = conn.recv()
             try:
-                ranges, poses = simulate_epoch(spec, epoch, grid, simulator)
+                ranges, poses = simulate_epoch(spec, epoch, grid, simulator, corruptions)
                 r_shm, p_shm = buffers[epoch % 2]
                 np.ndarray(ranges.shape, np.float32, buffer=r_shm.buf)[:] = ranges
                 np.ndarray(poses.shape, np.float64, buffer=p_shm.buf)[:] = poses

@@ -9,7 +9,10 @@ scanloc.real.log_sensor) and its pose is base ⊕ mount. The sensor is read from
 the override the `real_logs` entry names) and written with the noise to
 data/maps/<log>/{sensor,noise}.yaml, which later stages load with `~sensor ~noise
 +sensor_file=data/maps/<log>/sensor.yaml +noise_file=data/maps/<log>/noise.yaml`
-(scanloc.stages.group_files).
+(scanloc.stages.group_files). The laser's corruptions, measured on the mapping part against
+the map (scanloc.real.residuals), go to data/maps/<log>/corruptions.yaml (the learned
+localizer's training stream loads them with `+corruptions_file=`), the residual histograms to
+data/maps/<log>/residuals.json.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from scanloc.real.log_sensor import (
     resolve_mount,
     sensor_from_log,
 )
+from scanloc.real.residuals import laser_residuals
 from scanloc.real.split import (
     Split,
     coverage,
@@ -79,10 +83,10 @@ def chosen_sensor(cfg: DictConfig, from_log: dict) -> dict:
     return override
 
 
-def write_log_conf(map_dir: Path, sensor: dict, noise: dict) -> None:
-    """data/maps/<log>/{sensor,noise}.yaml: what later stages load (module doc)."""
+def write_log_conf(map_dir: Path, sensor: dict, noise: dict, corruptions: dict) -> None:
+    """data/maps/<log>/{sensor,noise,corruptions}.yaml: what later stages load (module doc)."""
     map_dir.mkdir(parents=True, exist_ok=True)
-    for group, values in (("sensor", sensor), ("noise", noise)):
+    for group, values in (("sensor", sensor), ("noise", noise), ("corruptions", corruptions)):
         (map_dir / f"{group}.yaml").write_text(yaml.safe_dump(values))
 
 
@@ -159,7 +163,17 @@ def main(cfg: DictConfig) -> None:
             resolution=float(cfg.mapping.resolution), margin=float(cfg.mapping.margin),
         )  # fmt: skip
         save_log_map(grid, Path(cfg.map_dir) / "map.yaml", Path(cfg.map_dir) / "preview.png")
-        write_log_conf(Path(cfg.map_dir), sensor, noise)
+        simulator_args = {
+            "spec": spec,
+            "mode": sensor["mode"],
+            "unknown_blocks": sensor["unknown_blocks"],
+        }
+        corruptions, residuals = laser_residuals(
+            grid, simulator_args, noise_from_config(noise), laser_truth[m], ranges[m],
+            int(cfg.seed),
+        )  # fmt: skip
+        write_log_conf(Path(cfg.map_dir), sensor, noise, corruptions.to_dict())
+        write_json(Path(cfg.map_dir) / "residuals.json", residuals)
         segments = {
             "real": segments_of(e),
             "tune": segments_of(m),
@@ -173,6 +187,7 @@ def main(cfg: DictConfig) -> None:
         covered = coverage(grid, laser_truth[e], ranges[e], angles, spec.range_max)
         uncovered = e[covered["uncovered_steps"]]  # as log scan indices
         metrics = split_metrics(split, count, covered, runs["real"][0], fallbacks)
+        metrics["laser_residuals"] = residuals["measured"] | {"fitted": corruptions.to_dict()}
         write_json(Path(cfg.metrics_file), metrics)
         meta = {
             "map": cfg.log_name,

@@ -19,49 +19,71 @@ from scanloc.scanlocnet.pose_grid import PoseGrid
 from scanloc.scanlocnet.resume import TrainingStopped
 from scanloc.scanlocnet.scan_stream import StreamSpec
 from scanloc.scanlocnet.training import fit_scanlocnet
+from scanloc.sensor.corruptions import KINDS
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.stages.group_files import load_group_files
 from scanloc.world.map_server import load_map
 
 
+def stream_corruptions(cfg: DictConfig) -> dict:
+    """The stream's laser corruptions (a real log's, measured by the `real` stage), less the
+    kinds `corruptions_off` names (an ablation): their rate, or the range noise, set to 0."""
+    corruptions = to_dict(cfg.corruptions) if cfg.get("corruptions") else {}
+    for kind in cfg.get("corruptions_off") or ():
+        if kind == "noise":
+            corruptions["noise_scale_m"] = 0.0
+        elif kind in KINDS:
+            corruptions[kind] = {"rate": 0.0, "mean_run": 1.0}
+        else:
+            raise ValueError(f"corruptions_off: expected some of {[*KINDS, 'noise']}, got {kind!r}")
+    return corruptions
+
+
+def train(cfg: DictConfig, out_dir: Path) -> tuple[dict, dict]:
+    """Train the configured ScanLocNet into `out_dir`: (deterministic metrics, machine
+    figures). A stop signal exits the process (module docstring)."""
+    run = cfg.training
+    grid = PoseGrid.from_map(
+        load_map(cfg.map_yaml),
+        float(cfg.grid.cell_size),
+        int(cfg.grid.heading_bins),
+        float(cfg.grid.clearance),
+    )
+    stream = StreamSpec(
+        map_yaml=str(cfg.map_yaml),
+        sensor=to_dict(cfg.sensor),
+        noise=to_dict(cfg.noise),
+        clearance=float(cfg.grid.clearance),
+        scans_per_epoch=int(run.scans_per_epoch),
+        seed=int(run.seed),
+        corruptions=stream_corruptions(cfg),
+    )
+    try:
+        metrics = fit_scanlocnet(
+            model_cfg=to_dict(cfg.net),
+            grid=grid,
+            stream=stream,
+            val_dataset=Path(cfg.val_dataset),
+            out_dir=out_dir,
+            epochs=int(run.epochs),
+            batch_size=int(run.batch_size),
+            lr=float(run.lr),
+            weight_decay=float(run.weight_decay),
+            pct_start=float(run.pct_start),
+            trainer_cfg=to_dict(cfg.trainer),
+            checkpoint_dir=Path(cfg.checkpoint_dir),
+        )
+    except TrainingStopped as stop:
+        print(f"train_scanlocnet {cfg.map_name}: {stop}", file=sys.stderr)
+        sys.exit(128 + stop.signum)
+    return split_machine_figures(metrics)
+
+
 @stage_main("scanlocnet")
 def main(cfg: DictConfig) -> None:
     load_group_files(cfg)
-    run = cfg.training
     with timed_stage(f"train_scanlocnet_{cfg.map_name}", cfg.timing_dir) as machine:
-        grid = PoseGrid.from_map(
-            load_map(cfg.map_yaml),
-            float(cfg.grid.cell_size),
-            int(cfg.grid.heading_bins),
-            float(cfg.grid.clearance),
-        )
-        stream = StreamSpec(
-            map_yaml=str(cfg.map_yaml),
-            sensor=to_dict(cfg.sensor),
-            noise=to_dict(cfg.noise),
-            clearance=float(cfg.grid.clearance),
-            scans_per_epoch=int(run.scans_per_epoch),
-            seed=int(run.seed),
-        )
-        try:
-            metrics = fit_scanlocnet(
-                model_cfg=to_dict(cfg.net),
-                grid=grid,
-                stream=stream,
-                val_dataset=Path(cfg.val_dataset),
-                out_dir=Path(cfg.out_dir),
-                epochs=int(run.epochs),
-                batch_size=int(run.batch_size),
-                lr=float(run.lr),
-                weight_decay=float(run.weight_decay),
-                pct_start=float(run.pct_start),
-                trainer_cfg=to_dict(cfg.trainer),
-                checkpoint_dir=Path(cfg.checkpoint_dir),
-            )
-        except TrainingStopped as stop:
-            print(f"train_scanlocnet {cfg.map_name}: {stop}", file=sys.stderr)
-            sys.exit(128 + stop.signum)
-        kept, figures = split_machine_figures(metrics)
+        kept, figures = train(cfg, Path(cfg.out_dir))
         machine.update(figures)
         write_json(Path(cfg.metrics_path), kept | {"map": cfg.map_name})
 
