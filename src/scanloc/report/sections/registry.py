@@ -14,6 +14,7 @@ from scanloc.report.sections import (
     per_map,
     provenance,
     real_data,
+    real_learned,
     table1,
     table2,
 )
@@ -28,6 +29,7 @@ SECTIONS: tuple[SectionSpec, ...] = (
     learned.SECTION,
     global_localization.SECTION,
     real_data.SECTION,
+    real_learned.SECTION,
     per_map.SECTION,  # one per map of params.yaml `maps`
     bags.SECTION,  # one block per params.yaml `bags` entry
     provenance.SECTION,
