@@ -159,3 +159,18 @@ def test_evaluation_scores_the_top1_calibration_of_verified_hypotheses() -> None
     metrics = evaluate_all(truth, {"v": table}, hypotheses={"v": poses}, scores={"v": scores})
     assert metrics["v"]["top1_recall"] == 0.5
     assert metrics["v"]["calibration_ece"] == pytest.approx(0.5 / 4)  # only the 0.5 bin is off
+
+
+@pytest.mark.slow
+def test_the_scaling_benchmark_reports_both_parts(quick_benchmark) -> None:
+    figures = quick_benchmark("learned_scaling.py")
+    maps = figures["scaling"]["maps"]
+    assert [m["cells"] for m in maps] == sorted(m["cells"] for m in maps) and len(maps) == 2
+    assert figures["scaling"]["decode_ms_growth"]["per_cell"] > 0
+    assert figures["inference"]["verification_ms"] > 0
+    assert figures["inference"]["total_ms"] >= figures["inference"]["hypotheses_ms"]
+
+
+def test_calibration_without_a_single_right_hypothesis_is_a_small_constant() -> None:
+    calibration = ScoreCalibration.fit(np.random.default_rng(0).normal(size=(99, 3)), np.zeros(99))
+    assert np.allclose(calibration.probability(np.zeros((4, 3))), 0.5 / 100)

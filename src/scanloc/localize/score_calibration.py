@@ -44,6 +44,10 @@ class ScoreCalibration:
         mean = features.mean(axis=0)
         scale = features.std(axis=0)
         scale[scale == 0] = 1.0
+        if hits.min() == hits.max():  # all right or all wrong: nothing to separate them by
+            rate = (hits.sum() + 0.5) / (len(hits) + 1.0)  # Jeffreys-smoothed base rate
+            zeros = tuple(0.0 for _ in mean)
+            return cls(zeros, float(np.log(rate / (1 - rate))), tuple(mean.tolist()), tuple(scale))
         x = np.hstack([np.ones((len(hits), 1)), (features - mean) / scale])
         beta = np.zeros(x.shape[1])
         penalty = ridge * len(hits) * np.eye(x.shape[1])
