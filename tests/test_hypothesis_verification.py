@@ -18,6 +18,7 @@ from scanloc.evaluate.table2 import evaluate_all
 from scanloc.localize.hypothesis_verification import (
     HypothesisVerifier,
     VerifierParams,
+    inlier_margins,
     merge_duplicates,
 )
 from scanloc.localize.score_calibration import ScoreCalibration
@@ -100,6 +101,13 @@ def test_merge_keeps_the_best_of_each_cluster() -> None:
     poses = np.array([[0, 0, 0], [0.1, 0, 0.02], [2, 0, 0], [0.05, 0, 1.0]], float)
     kept = merge_duplicates(poses, np.array([0.2, 0.9, 0.5, 0.1]), 0.25, math.radians(5))
     assert kept.tolist() == [1, 2, 3]
+
+
+def test_the_margin_is_to_the_best_hypothesis_elsewhere() -> None:
+    poses = np.array([[0, 0, 0], [0.1, 0, 0], [3, 0, 0]], float)  # the first two: one pose
+    margins = inlier_margins(np.array([0.9, 0.8, 0.6]), poses, VerifierParams())
+    assert margins == pytest.approx([0.3, 0.2, -0.3])
+    assert inlier_margins(np.array([0.7]), poses[:1], VerifierParams()) == pytest.approx([0.7])
 
 
 def test_unknown_verify_fields_are_named() -> None:

@@ -61,10 +61,11 @@ def verified(hypotheses_of: Callable, verifier: HypothesisVerifier) -> Callable:
 def fit_calibration(
     localize, verifier: HypothesisVerifier, ranges: np.ndarray, poses: np.ndarray
 ) -> tuple[ScoreCalibration, dict[str, float]]:
-    """The verifier's calibration fitted on scans with known poses: every (unverified)
-    hypothesis of every scan, labelled by whether it lies within the recall thresholds of the
-    truth after refinement; also how many scans and hypotheses it saw. Where every hypothesis
-    is right, or every one wrong (an untrained model), the calibration is their smoothed share."""
+    """The verifier's calibration fitted on scans with known poses: the best hypothesis of each
+    scan after verification (the highest inlier fraction), labelled by whether it lies within
+    the recall thresholds of the truth after refinement; also how many scans it saw and how
+    many of their best hypotheses were right. Where all are right, or all wrong (an untrained
+    model), the calibration is their smoothed share."""
     features, hits = [], []
     for scan, truth in zip(ranges, poses, strict=True):
         hyp = localize(scan)
@@ -72,14 +73,11 @@ def fit_calibration(
         refined, feats = verifier.features(scan, hyp.poses[0][real], hyp.weights[0][real])
         close = np.hypot(refined[:, 0] - truth[0], refined[:, 1] - truth[1]) <= RECALL_DISTANCE_M
         turn = np.degrees(np.abs(wrap_angle(refined[:, 2] - truth[2]))) <= RECALL_ANGLE_DEG
-        features.append(feats)
-        hits.append(close & turn)
+        best = int(np.argmax(feats[:, 0])) if len(feats) else 0
+        features.append(feats[best : best + 1])
+        hits.append((close & turn)[best : best + 1])
     features_all, hits_all = np.concatenate(features), np.concatenate(hits)
-    summary = {
-        "calibration_scans": len(ranges),
-        "calibration_hypotheses": len(hits_all),
-        "calibration_hit_rate": float(hits_all.mean()),
-    }
+    summary = {"calibration_scans": len(ranges), "calibration_hit_rate": float(hits_all.mean())}
     return ScoreCalibration.fit(features_all, hits_all), summary
 
 
