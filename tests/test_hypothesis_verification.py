@@ -6,6 +6,7 @@ the expected calibration error matches its definition."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,10 +22,12 @@ from scanloc.localize.hypothesis_verification import (
     inlier_margins,
     merge_duplicates,
 )
+from scanloc.localize.kinds import LocalizeInputs, learned_hypotheses
 from scanloc.localize.score_calibration import ScoreCalibration
 from scanloc.pose import wrap_angle
 from scanloc.scanlocnet.model import Hypotheses
 from scanloc.sensor.raycast import CastMap, cast_exact
+from scanloc.trajectory.format import Trajectory
 from small_world import SPEC, ug01_scans
 
 TRUTH = np.array([[3.0, 2.2, 0.4]])
@@ -182,3 +185,11 @@ def test_the_scaling_benchmark_reports_both_parts(quick_benchmark) -> None:
 def test_calibration_without_a_single_right_hypothesis_is_a_small_constant() -> None:
     calibration = ScoreCalibration.fit(np.random.default_rng(0).normal(size=(99, 3)), np.zeros(99))
     assert np.allclose(calibration.probability(np.zeros((4, 3))), 0.5 / 100)
+
+
+def test_a_verified_config_without_calibration_scans_names_the_field() -> None:
+    traj = Trajectory(np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
+    inputs = LocalizeInputs(traj, np.zeros((1, SPEC.num_beams)), Path("unused.yaml"), SPEC)
+    cfg = {"name": "mine", "model": "missing.pt", "verify": {"iterations": 3}}
+    with pytest.raises(ValueError, match=r"mine\.yaml: field 'calibration_scans': expected"):
+        learned_hypotheses(cfg, inputs)

@@ -198,6 +198,12 @@ def learned_hypotheses(
     calibration fitted on `calibration_count` of the `calibration_scans` dataset's validation
     scans, evenly spaced: scans no evaluation scores)."""
     start = time.perf_counter()
+    for field in ("calibration_scans", "calibration_count") if cfg.get("verify") else ():
+        if cfg.get(field) is None:
+            raise ValueError(
+                f"conf/localizer/{cfg.get('name')}.yaml: field '{field}': expected a value "
+                "(verified hypotheses need the scans their score is calibrated on)"
+            )
     _, hypotheses_of, _ = scan_hypotheses(Path(cfg["model"]), inputs.ranges, **learned_options(cfg))
     if not cfg.get("verify"):
         return hypotheses_of, time.perf_counter() - start
