@@ -219,7 +219,7 @@ class HypothesisVerifier:
         return x[pick], y[pick], x, y
 
     def features(self, scan: np.ndarray, poses: np.ndarray, probabilities: np.ndarray):
-        """(refined poses (K, 3), features (K, 3) in FEATURES order) of one scan's hypotheses."""
+        """(refined poses (K, 3), features (K, 4) in FEATURES order) of one scan's hypotheses."""
         poses = np.ascontiguousarray(poses, dtype=np.float64)
         match_x, match_y, score_x, score_y = self._end_points(scan)
         refined = np.empty_like(poses)
@@ -281,7 +281,8 @@ class HypothesisVerifier:
 
 def inlier_margins(inliers: np.ndarray, poses: np.ndarray, params: VerifierParams) -> np.ndarray:
     """Each hypothesis' inlier fraction minus the best among the scan's other hypotheses that
-    refined to a different pose (beyond the merge distance or angle); 0 when there is none."""
+    refined to a different pose (beyond the merge distance or angle); its own inlier fraction
+    when there is none (a margin over nothing)."""
     margins = np.empty(len(inliers))
     angle = math.radians(params.merge_angle_deg)
     for i in range(len(inliers)):
