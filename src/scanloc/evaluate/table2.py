@@ -61,12 +61,10 @@ def evaluate_all(
         metrics |= convergence_metrics(truth, tables[name], kidnap_steps)
         metrics |= staying_right_metrics(truth, tables[name], kidnap_steps)
         if name in hypotheses:
-            for k in RECALL_K:
-                hit = recall_within(hypotheses[name][:, :k], truth)
-                metrics[f"top{k}_recall"] = float(hit.mean())
+            hits = {k: recall_within(hypotheses[name][:, :k], truth) for k in RECALL_K}
+            metrics |= {f"top{k}_recall": float(hit.mean()) for k, hit in hits.items()}
         if name in scores:
-            top1_hit = recall_within(hypotheses[name][:, :1], truth)
-            metrics["calibration_ece"] = expected_calibration_error(scores[name][:, 0], top1_hit)
+            metrics["calibration_ece"] = expected_calibration_error(scores[name][:, 0], hits[1])
             metrics["top1_score_mean"] = float(np.mean(scores[name][:, 0]))
         out[name] = metrics
     return out

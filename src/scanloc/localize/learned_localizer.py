@@ -25,7 +25,7 @@ import numpy as np
 from scanloc.estimates import Localization, estimate_table
 from scanloc.localize.hypothesis_verification import HypothesisVerifier
 from scanloc.localize.score_calibration import ScoreCalibration
-from scanloc.pose import RECALL_ANGLE_DEG, RECALL_DISTANCE_M, wrap_angle
+from scanloc.pose import recall_within
 
 
 def scan_hypotheses(
@@ -71,11 +71,9 @@ def fit_calibration(
         hyp = localize(scan)
         real = hyp.weights[0] > 0
         refined, feats = verifier.features(scan, hyp.poses[0][real], hyp.weights[0][real])
-        close = np.hypot(refined[:, 0] - truth[0], refined[:, 1] - truth[1]) <= RECALL_DISTANCE_M
-        turn = np.degrees(np.abs(wrap_angle(refined[:, 2] - truth[2]))) <= RECALL_ANGLE_DEG
         best = int(np.argmax(feats[:, 0])) if len(feats) else 0
         features.append(feats[best : best + 1])
-        hits.append((close & turn)[best : best + 1])
+        hits.append(recall_within(refined[best : best + 1, None], truth[None]))
     features_all, hits_all = np.concatenate(features), np.concatenate(hits)
     summary = {"calibration_scans": len(ranges), "calibration_hit_rate": float(hits_all.mean())}
     return ScoreCalibration.fit(features_all, hits_all), summary

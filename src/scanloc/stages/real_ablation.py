@@ -9,13 +9,11 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-import numpy as np
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from scanloc.evaluate.metrics import expected_calibration_error
+from scanloc.evaluate.table2 import RECALL_K, evaluate_all
 from scanloc.io import write_json
 from scanloc.localize.kinds import LocalizeInputs, run_localizer
-from scanloc.pose import recall_within
 from scanloc.sensor.corruptions import KINDS
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
@@ -43,25 +41,29 @@ def localizer_config(name: str, model: Path, calibration_scans: str) -> dict:
 
 
 def score_on_run(cfg: DictConfig, model: Path) -> dict[str, float]:
-    """Top-1/5/20 recall of the model's hypotheses on the run's scans, and the verified top-1
-    recall and calibration error."""
+    """The evaluation's metrics (scanloc.evaluate.table2.evaluate_all) of the model's hypotheses
+    on the run's scans, raw (top-1/5/20 recall) and verified (top-1 recall, its median error
+    and calibration error)."""
     trajectory, ranges = load_trajectory(Path(cfg.run_dir))
     laser = laser_spec_from_config(to_dict(cfg.sensor))
     inputs = LocalizeInputs(trajectory, ranges, Path(cfg.map_yaml), laser)
-    truth = trajectory.truth
-    out = {}
-    raw = run_localizer(localizer_config("scanlocnet", model, ""), inputs).hypotheses
-    for k in (1, 5, 20):
-        out[f"top{k}_recall"] = float(recall_within(raw["poses"][:, :k], truth).mean())
     calibration = str(cfg.val_dataset)
-    verified = run_localizer(localizer_config("scanlocnet_verified", model, calibration), inputs)
-    hyp = verified.hypotheses
-    hit = recall_within(hyp["poses"][:, :1], truth)
-    out["verified_top1_recall"] = float(hit.mean())
-    out["calibration_ece"] = expected_calibration_error(hyp["scores"][:, 0], hit)
-    err = np.hypot(*(hyp["poses"][:, 0, :2] - truth[:, :2]).T)
-    out["verified_pos_err_median_m"] = float(np.median(err))
-    return out
+    runs = {
+        name: run_localizer(localizer_config(name, model, calibration), inputs)
+        for name in ("scanlocnet", "scanlocnet_verified")
+    }
+    metrics = evaluate_all(
+        trajectory.truth,
+        {name: run.table for name, run in runs.items()},
+        hypotheses={name: run.hypotheses["poses"] for name, run in runs.items()},
+        scores={"scanlocnet_verified": runs["scanlocnet_verified"].hypotheses["scores"]},
+    )
+    raw, verified = metrics["scanlocnet"], metrics["scanlocnet_verified"]
+    return {f"top{k}_recall": raw[f"top{k}_recall"] for k in RECALL_K} | {
+        "verified_top1_recall": verified["top1_recall"],
+        "verified_pos_err_median_m": verified["pos_err_median_m"],
+        "calibration_ece": verified["calibration_ece"],
+    }
 
 
 @stage_main("real_ablation")
