@@ -13,13 +13,14 @@ model.pt, from `dvc repro train_scanlocnet@sparse_obstacles`) when it exists, el
 one of conf/scanlocnet.yaml's architecture. An untrained network decodes more slowly (its
 branch and bound prunes little), so its figures are a worst case; the JSON names which ran.
 
-Two hybrids, with the proposal settings conf/localizer ships (hybrid.yaml's `proposal`, and
+Three hybrids, with the proposal settings conf/localizer ships (hybrid.yaml's `proposal`, and
 hybrid_adaptive.yaml's over it): the constant share (`mixture_share` of particles from the
-proposal, and so the network, on every update) and the adaptive one (hybrid.py's adaptive
-mixing: the network runs only on updates whose share is > 0, so its cost is amortised); on this
-clean drive from a known pose the adaptive one should not need the network at all. Each
-reports the share of updates that ran the network; its Hz include the network's cost where it
-ran.
+proposal, and so the network, on every update), the adaptive one (hybrid.py's adaptive
+mixing: the network runs only on updates whose share is > 0, so its cost is amortised; on this
+clean drive from a known pose it should not need the network at all), and the verified one
+(hybrid_verified.yaml: the constant share with every scan's hypotheses verified against the
+map; uncalibrated here, which costs the same). Each reports the share of updates that ran the
+network; its Hz include the network's (and verification's) cost where it ran.
 
 Run: python benchmarks/hybrid.py [--quick] [--model PATH]. Last line: JSON.
 """
@@ -44,7 +45,8 @@ from amcl import (  # benchmarks/amcl.py, beside this script
     params_for,
 )
 from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal
-from scanloc.localize.learned_localizer import scan_hypotheses
+from scanloc.localize.hypothesis_verification import HypothesisVerifier, VerifierParams
+from scanloc.localize.learned_localizer import scan_hypotheses, verified
 from scanloc.localize.mcl.config import MclConfig, build_filter
 from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.models.training import build_model
@@ -76,17 +78,25 @@ def untrained_model(grid, spec: LaserSpec, path: Path) -> Path:
     return path
 
 
-def shipped_hybrids() -> dict[str, HybridParams]:
-    """The two hybrids' proposal settings as conf/localizer ships them."""
+def shipped(name: str) -> dict:
+    """conf/localizer/<name>.yaml as written (its own keys, not its defaults')."""
+    return yaml.safe_load((ROOT / "conf" / "localizer" / f"{name}.yaml").read_text())
 
-    def proposal(name: str) -> dict:
-        path = ROOT / "conf" / "localizer" / f"{name}.yaml"
-        return yaml.safe_load(path.read_text())["proposal"]
 
-    constant = proposal("hybrid")
+def shipped_hybrids() -> dict[str, tuple[HybridParams, bool]]:
+    """The three hybrids' proposal settings as conf/localizer ships them, and whether each
+    verifies its hypotheses."""
+    constant = shipped("hybrid")["proposal"]
     return {
-        "hybrid": HybridParams.from_config(constant),
-        "adaptive_hybrid": HybridParams.from_config(constant | proposal("hybrid_adaptive")),
+        "hybrid": (HybridParams.from_config(constant), False),
+        "adaptive_hybrid": (
+            HybridParams.from_config(constant | shipped("hybrid_adaptive")["proposal"]),
+            False,
+        ),
+        "verified_hybrid": (
+            HybridParams.from_config(constant | shipped("hybrid_verified").get("proposal", {})),
+            True,
+        ),
     }
 
 
@@ -101,11 +111,18 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = args.model if trained else untrained_model(grid, spec, Path(tmp) / "model.pt")
         _, hypotheses_of, _ = scan_hypotheses(path, ranges)
-    net = []
+    verifier = HypothesisVerifier(
+        grid, spec, VerifierParams.from_config(shipped("hybrid_verified")["verify"])
+    )
+    verified_of = verified(hypotheses_of, verifier)
+    net, checked = [], []
     for scan in ranges[:: max(1, len(ranges) // (10 if args.quick else 60))]:
         tick = time.perf_counter()
-        hypotheses_of(scan)
+        hyp = hypotheses_of(scan)
         net.append(time.perf_counter() - tick)
+        tick = time.perf_counter()
+        verifier.verify(scan, hyp)
+        checked.append(time.perf_counter() - tick)
     threads = numba.get_num_threads()
     figures: dict[str, object] = {
         "map": map_name,
@@ -114,9 +131,13 @@ def main() -> None:
         "model": str(args.model) if trained else "untrained",
         "sensor_model": MODEL,
         "network_ms_median": round(1e3 * float(np.median(net)), 2),
+        "verification_ms_median": round(1e3 * float(np.median(checked)), 2),
         "quick": args.quick,
     }
-    print(f"map: {map_name}; model: {figures['model']}; network {figures['network_ms_median']} ms")
+    print(
+        f"map: {map_name}; model: {figures['model']}; network {figures['network_ms_median']} ms, "
+        f"verification {figures['verification_ms_median']} ms"
+    )
     for n in SIZES:
         params = params_for(MODEL, n)
         plain = compiled_filter(grid, spec, params)
@@ -125,8 +146,10 @@ def main() -> None:
         key = f"{n // 1000}k"
         figures[f"amcl_hz_{key}"] = round(1.0 / plain_s, 1)
         config = MclConfig.from_ros(params | {"publish_every_update": True}, source="benchmark")
-        for label, hybrid in shipped_hybrids().items():
-            proposal = LearnedProposal(hypotheses_of, UniformProposal(grid), hybrid)
+        for label, (hybrid, verify) in shipped_hybrids().items():
+            proposal = LearnedProposal(
+                verified_of if verify else hypotheses_of, UniformProposal(grid), hybrid
+            )
             weighting = ImportanceWeights(proposal, hybrid)
             filter_ = build_filter(grid, spec, config, 0, proposal=proposal, weighting=weighting)
             filter_.initialize_pose(odom[0])

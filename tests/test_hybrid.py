@@ -222,6 +222,34 @@ def test_bad_parameters_are_rejected() -> None:
     assert math.isfinite(HybridParams().kidnap_probability)
 
 
+def test_score_weights_follow_the_verified_scores_and_need_them() -> None:
+    """weights_from 'score': the mixture is weighted by the verified hypotheses' calibrated
+    scores (zero-score ones dropped), not by the network's probabilities."""
+    poses = np.array([[1.0, 1.0, 0.0], [3.0, 1.0, 1.0], [2.0, 2.0, -1.0]])
+
+    def scored(_: np.ndarray) -> Hypotheses:
+        stds = np.full((1, 3, 3), 0.1)
+        return Hypotheses(
+            poses[None], np.array([[0.7, 0.2, 0.1]]), stds, np.array([[0.1, 0.6, 0.0]])
+        )
+
+    proposal = LearnedProposal(scored, UniformProposal(GRID), HybridParams(weights_from="score"))
+    proposal.observe(np.zeros(SPEC.num_beams, dtype=np.float32))
+    proposal.sample(1, np.random.default_rng(0))
+    np.testing.assert_allclose(proposal.weights, [1 / 7, 6 / 7])
+    np.testing.assert_allclose(proposal.means, poses[:2])
+    unscored = LearnedProposal(
+        hypotheses_from(lambda _: poses, 0.1),
+        UniformProposal(GRID),
+        HybridParams(weights_from="score"),
+    )
+    unscored.observe(np.zeros(SPEC.num_beams, dtype=np.float32))
+    with pytest.raises(ValueError, match="verify"):
+        unscored.sample(1, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="weights_from"):
+        HybridParams(weights_from="votes")
+
+
 # The adaptive defaults (alphas 0.05 / 0.5, threshold 0.7). On this drive's clean stretch
 # w_fast / w_slow falls to 0.36 at its lowest (lost 0.64), after the kidnap to 0.13.
 ADAPTIVE = HybridParams(adaptive_mixing=True, mixture_share=0.5)
@@ -261,3 +289,15 @@ def test_adaptive_mixing_draws_proposals_after_a_kidnap(drive) -> None:
     m = convergence_metrics(traj.truth, table, traj.kidnap_steps)
     assert m["recovered"] == 1 and m["recovery_steps_1"] <= 30
     assert 0 < pf.weighting.mixed_updates < 0.2 * pf.weighting.updates
+
+
+@pytest.mark.slow
+def test_benchmark_quick_run_reports_the_three_hybrids(quick_benchmark) -> None:
+    figures = quick_benchmark("hybrid.py")
+    assert figures["network_ms_median"] > 0 and figures["verification_ms_median"] > 0
+    for label in ("hybrid", "adaptive_hybrid", "verified_hybrid"):
+        for size in ("1k", "5k"):
+            assert figures[f"{label}_hz_{size}"] > 0
+            assert 0.0 <= figures[f"{label}_network_share_{size}"] <= 1.0
+    # the constant share runs the network on every update, verified or not
+    assert figures["hybrid_network_share_5k"] == figures["verified_hybrid_network_share_5k"] == 1.0

@@ -187,3 +187,30 @@ def test_a_name_with_hydras_global_keyword_is_composed_whole() -> None:
     names = sorted(str(c.name) for c in cfg.localizers.values())
     assert names == stage_localizers("localize", CONF / "localizer")
     assert "amcl_global_matched" in names
+
+
+def composed_localizer(name: str) -> dict[str, Any]:
+    """conf/localizer/<name>.yaml composed as the localize stage composes it (map 1)."""
+    with initialize_config_dir(config_dir=str(CONF.resolve()), version_base=None):
+        cfg = compose(
+            config_name="localize",
+            overrides=["map_name=sparse_obstacles", f"localizer={name}"],
+        )
+    return dict(cfg.localizer)
+
+
+# What a localizer says about itself, and what makes the hybrid the hybrid.
+IDENTITY = {"name", "kind", "group", "stages", "global_table", "note", "mode"}
+
+
+@pytest.mark.parametrize(
+    ("hybrid", "baseline"), [("hybrid_real", "amcl_real"), ("hybrid_verified", "hybrid")]
+)
+def test_matched_pairs_differ_only_in_what_they_claim(hybrid: str, baseline: str) -> None:
+    """hybrid_real is amcl_real's filter plus the learned proposal; hybrid_verified is the
+    hybrid plus verification: every filter key the baseline sets is equal."""
+    ours, theirs = composed_localizer(hybrid), composed_localizer(baseline)
+    differing = {key for key in theirs if key not in IDENTITY and ours.get(key) != theirs.get(key)}
+    assert not differing, f"{hybrid} and {baseline} differ in {sorted(differing)}"
+    if hybrid == "hybrid_verified":
+        assert set(ours) - set(theirs) == {"verify", "calibration_scans", "calibration_count"}

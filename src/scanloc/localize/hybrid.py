@@ -8,8 +8,9 @@ amcl finds itself slowly (global localization from a uniform cloud) and rarely r
 kidnap (random free poses seldom land near the truth); the learned localizer is global but
 coarse. Here amcl keeps its parts (motion model, sensor model, KLD resampling, clusters) and
 the learned model supplies the proposal q(x | scan): a mixture of Gaussians at its k best
-hypotheses of the current scan (weights, and predicted standard deviations inflated and
-floored), with a defensive share `uniform_share` of amcl's uniform proposal, so that a
+hypotheses of the current scan (their probabilities as weights, or with `weights_from: score`
+their calibrated scores after verification against the map; predicted standard deviations
+inflated and floored), with a defensive share `uniform_share` of amcl's uniform proposal, so that a
 useless network cannot leave the filter worse off than uniform sampling would.
 
 The proposal is used where amcl draws particles that do not descend from its own, and every
@@ -80,8 +81,13 @@ class HybridParams:
     adaptive_alpha_slow: float = 0.05
     adaptive_alpha_fast: float = 0.5
     adaptive_threshold: float = 0.7
+    weights_from: str = "network"
 
     def __post_init__(self) -> None:
+        if self.weights_from not in ("network", "score"):
+            raise ValueError(
+                f"weights_from must be 'network' or 'score', got {self.weights_from!r}"
+            )
         if self.k < 1 or self.std_inflation <= 0 or min(self.min_std_xy, self.min_std_theta) <= 0:
             raise ValueError(
                 "need k >= 1, std_inflation > 0 and positive standard-deviation floors"
@@ -163,8 +169,17 @@ class LearnedProposal:
         hyp = self.hypotheses_of(self._scan)
         self._scan = None
         self.inferences += 1
-        weights = np.asarray(hyp.weights[0][: p.k], dtype=np.float64)
-        keep = weights > 0
+        keep = np.asarray(hyp.weights[0][: p.k]) > 0
+        if p.weights_from == "score":
+            if hyp.scores is None:
+                raise ValueError(
+                    "hybrid proposal: weights_from 'score' needs verified hypotheses (a `verify` "
+                    "section in the localizer's config)"
+                )
+            weights = np.asarray(hyp.scores[0][: p.k], dtype=np.float64)
+            keep &= weights > 0
+        else:
+            weights = np.asarray(hyp.weights[0][: p.k], dtype=np.float64)
         self.means = np.ascontiguousarray(hyp.poses[0][: p.k][keep])
         floor = np.array([p.min_std_xy, p.min_std_xy, p.min_std_theta])
         self.stds = np.ascontiguousarray(
