@@ -233,10 +233,14 @@ def test_smoke_metrics_hold_every_contract_metric(smoke_repo: Path) -> None:
         assert "top5_recall" in per_run["scanlocnet"]
     # Real logs over filter seeds, both odometry sources (the seeds contract of design.md).
     seeds = metrics["reports/metrics/real_seeds.json"]
+    compared = set(
+        yaml.safe_load((REPO_ROOT / "conf" / "localize_seeds.yaml").read_text())["compared"]
+    )
+    assert {"amcl", "amcl_real", "amcl_global", "hybrid", "scanlocnet"} <= compared
     for run in ("intel_real", "intel_kidnap"):
         for odometry in ("wheel", "laser"):
             figures = seeds[run][odometry]
-            assert set(figures) == {"amcl", "amcl_real", "amcl_global", "hybrid", "scanlocnet"}
+            assert set(figures) == compared  # every compared localizer, no other
             for name, per_localizer in figures.items():
                 expected = 1 if name == "scanlocnet" else 2  # deterministic: one run
                 assert per_localizer["n_seeds"] == expected, (run, odometry, name)

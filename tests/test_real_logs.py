@@ -27,7 +27,13 @@ from scanloc.real.log_sensor import (
     resolve_mount,
     sensor_from_log,
 )
-from scanloc.real.split import kidnap_segments, segment_run, segments_of, split_log
+from scanloc.real.split import (
+    kidnap_segments,
+    segment_run,
+    segments_of,
+    split_log,
+    tune_holdout,
+)
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
 from scanloc.stages.real import chosen_sensor
@@ -226,6 +232,7 @@ def test_the_stage_maps_only_the_mapping_part_of_a_third_log(tmp_path: Path, roo
     args = [f"{k}={out / v}" for k, v in [
         ("map_dir", "maps/third"), ("real_dir", "third_real"), ("sim_dir", "third_sim"),
         ("kidnap_dir", "third_kidnap"), ("tune_dir", "third_tune"),
+        ("tune_heldout_dir", "third_tune_heldout"),
         ("metrics_file", "real_third.json"), ("timing_dir", "timing"),
     ]]  # fmt: skip
     stage = [sys.executable, "-m", "scanloc.stages.real", "log_name=third"]
@@ -259,6 +266,16 @@ def test_the_stage_maps_only_the_mapping_part_of_a_third_log(tmp_path: Path, roo
     )
     sensor = yaml.safe_load((out / "maps" / "third" / "sensor.yaml").read_text())
     assert laser_spec_from_config(sensor).num_beams == 361
+    # the tune hold-out: the middle of each mapping quarter, in a map of the rest of them
+    heldout, _ = load_trajectory(out / "third_tune_heldout")
+    held, rest = np.r_[5:15, 65:75], np.r_[0:5, 15:20, 60:65, 75:80]
+    assert np.allclose(heldout.truth, base[held], atol=1e-6) and heldout.kidnap_steps == (10,)
+    rest_map = build_map_from_log(
+        lasers[rest], np.where(ranges < 8.0, ranges, np.nan)[rest],
+        np.linspace(-math.pi / 2, math.pi / 2, 361), meta["sensor"]["range_max"],
+    )  # fmt: skip
+    tune_map = load_map(out / "third_tune_heldout" / "map" / "map.yaml")
+    assert tune_map.cells.tobytes() == rest_map.cells.tobytes()
 
 
 def test_an_entry_may_name_a_sensor_override(tmp_path: Path, monkeypatch) -> None:
@@ -286,3 +303,21 @@ def test_laser_odometry_beats_the_wheels_on_intel(quick_benchmark) -> None:
     wheel, flat, chosen = intel["wheel"], intel["ICP"], intel["GICP@0.1"]
     assert chosen["step_theta_rms_deg"] < 0.5 * wheel["step_theta_rms_deg"]
     assert chosen["drift_percent"] < flat["drift_percent"] < wheel["drift_percent"]
+
+
+@pytest.mark.parametrize("mode", ["window", "halves", "full"])
+def test_the_tune_holdout_stays_in_the_mapping_part_and_apart(mode: str) -> None:
+    split = split_log(100, mode, 0.5, (0.25, 0.75))
+    tune_map, heldout = tune_holdout(split.mapping, (0.25, 0.75))
+    assert not np.intersect1d(tune_map, heldout).size
+    assert np.array_equal(np.union1d(tune_map, heldout), split.mapping)
+    if not split.optimistic:
+        assert not np.intersect1d(split.mapping, split.evaluation).size
+    # the same window in each mapping stretch: mapped on both sides in time
+    for a, b in segments_of(split.mapping):
+        held = heldout[(heldout >= a) & (heldout < b)]
+        assert held.min() > a and held.max() < b - 1
+    if mode == "window":  # [0, 25) and [75, 100)
+        assert segments_of(heldout) == [(6, 19), (81, 94)]
+    with pytest.raises(ValueError, match="tune hold-out"):
+        tune_holdout(np.arange(3))

@@ -10,7 +10,8 @@ intel's and 96.5 % of fr079's evaluated poses covered, `coverage` below). `halve
 first `map_share` and evaluates the rest: it leaves 34 % (intel) and 23 % (fr079) of the
 evaluated poses uncovered, since both robots reach new rooms late. Uncovered poses are counted,
 never dropped. `full` maps every scan and evaluates every scan: the old, optimistic figure,
-labelled so in meta.json.
+labelled so in meta.json. For tuning, each stretch of the mapping part is split the same way
+once more (`tune_holdout`): a tune map and a held-out tune run, never an evaluated scan.
 
 A run is a list of segments [start, end) of scan indices: its odometry chains the log's
 per-scan increments within each segment and adds no motion across the cut between two
@@ -82,6 +83,30 @@ def split_log(
     if len(mapping) < 2 or len(evaluation) < 2:
         raise ValueError(f"{mode} split of {num_scans} scans: each part needs >= 2 scans")
     return Split(mode, mapping, evaluation)
+
+
+def tune_holdout(
+    mapping: np.ndarray, window: tuple[float, float] = (0.25, 0.75)
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mapping part split as the log is, for choosing settings where the map is incomplete:
+    in each of its contiguous stretches the same `window` (fractions of the stretch) is held
+    out and the rest builds a tune map (scan indices of both, in time order). The hold-out,
+    localized in the tune map, is the `tune_heldout` run (its stretches joined by a cut, as a
+    kidnap); both stay inside the mapping part, so no evaluated scan is used. The `tune` run,
+    localized in the log's map, is covered by construction and cannot show what unmapped space
+    does."""
+    start, end = (float(f) for f in window)
+    tune_map, heldout = [], []
+    for a, b in segments_of(mapping):
+        first, last = a + round(start * (b - a)), a + round(end * (b - a))
+        if last - first < 2 or (b - a) - (last - first) < 2:
+            raise ValueError(
+                f"a tune hold-out needs >= 2 scans held out and >= 2 mapped in each mapping "
+                f"stretch, got [{a}, {b}) with window {list(window)}"
+            )
+        tune_map.append(np.r_[a:first, last:b])
+        heldout.append(np.arange(first, last))
+    return np.concatenate(tune_map), np.concatenate(heldout)
 
 
 def segments_of(indices: np.ndarray) -> list[tuple[int, int]]:

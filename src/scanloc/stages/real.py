@@ -43,6 +43,7 @@ from scanloc.real.split import (
     segment_run,
     segments_of,
     split_log,
+    tune_holdout,
 )
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
@@ -236,6 +237,31 @@ def main(cfg: DictConfig) -> None:
             "uncovered_steps": np.flatnonzero(np.isin(index, uncovered)).tolist(),
         }
         save_trajectory(sim, cfg.sim_dir, simulated, sim_meta, grid)
+        tune_map_scans, tune_heldout = tune_holdout(m, tuple(cfg.split.window))
+        tune_grid = build_map_from_log(
+            laser_truth[tune_map_scans], hits[tune_map_scans], angles, spec.range_max,
+            resolution=float(cfg.mapping.resolution), margin=float(cfg.mapping.margin),
+        )  # fmt: skip
+        heldout_dir = Path(cfg.tune_heldout_dir)
+        save_log_map(
+            tune_grid, heldout_dir / "map" / "map.yaml", heldout_dir / "map" / "preview.png"
+        )
+        traj, index = segment_run(segments_of(tune_heldout), stream.times[:count], truth, *steps)
+        tune_cover = coverage(
+            tune_grid, laser_truth[tune_heldout], ranges[tune_heldout], angles, spec.range_max
+        )
+        heldout_meta = meta | {
+            "name": f"{cfg.log_name}_tune_heldout",
+            "part": (
+                "the middle of each mapping stretch, localized in map/ built from the rest of the "
+                "mapping part (for choosing settings where the map is incomplete; never scored)"
+            ),
+            "tune_map_scans": segments_of(tune_map_scans),
+            "log_scans": segments_of(index),
+            "coverage": {k: v for k, v in tune_cover.items() if k != "uncovered_steps"},
+            "uncovered_steps": tune_cover["uncovered_steps"],
+        }
+        save_trajectory(traj, heldout_dir, ranges[index], heldout_meta, tune_grid)
 
 
 if __name__ == "__main__":
