@@ -63,9 +63,10 @@ def evaluate_all(
         if name in hypotheses:
             hits = {k: recall_within(hypotheses[name][:, :k], truth) for k in RECALL_K}
             metrics |= {f"top{k}_recall": float(hit.mean()) for k, hit in hits.items()}
-        if name in scores:
-            metrics["calibration_ece"] = expected_calibration_error(scores[name][:, 0], hits[1])
-            metrics["top1_score_mean"] = float(np.mean(scores[name][:, 0]))
+            if name in scores:  # verified hypotheses: their top-1 score against its hit
+                top1 = scores[name][:, 0]
+                metrics["calibration_ece"] = expected_calibration_error(top1, hits[1])
+                metrics["top1_score_mean"] = float(np.mean(top1))
         out[name] = metrics
     return out
 
