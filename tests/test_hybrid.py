@@ -14,8 +14,9 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from scanloc.evaluate.metrics import convergence_metrics
-from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal
+from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal, VerifiedGate
 from scanloc.localize.hybrid import _mixture_density as mixture_density
+from scanloc.localize.hypothesis_verification import HypothesisVerifier, VerifierParams
 from scanloc.localize.mcl.config import build_filter
 from scanloc.localize.mcl.filter import ParticleFilter, run_filter
 from scanloc.localize.mcl.proposals import UniformProposal
@@ -289,6 +290,86 @@ def test_adaptive_mixing_draws_proposals_after_a_kidnap(drive) -> None:
     m = convergence_metrics(traj.truth, table, traj.kidnap_steps)
     assert m["recovered"] == 1 and m["recovery_steps_1"] <= 30
     assert 0 < pf.weighting.mixed_updates < 0.2 * pf.weighting.updates
+
+
+# The verified gate with amcl's recovery off (the gate is the only way proposals come in).
+GATED = HybridParams(verified_gate=True, mixture_share=0.5)
+# A look-alike the network might offer beside the truth: the room's far corner.
+ELSEWHERE = np.array([5.3, 4.4, 2.5])
+
+
+def gated_hybrid(poses_of) -> ParticleFilter:
+    proposal = LearnedProposal(hypotheses_from(poses_of, 0.1), UniformProposal(GRID), GATED)
+    gate = VerifiedGate(HypothesisVerifier(GRID, SPEC, VerifierParams()), GATED.gate_margin)
+    weighting = ImportanceWeights(proposal, GATED, gate)
+    config = ros(**HYBRID_ROS, publish_every_update=True, recovery_alpha_slow=0.0)
+    return build_filter(GRID, SPEC, config, 0, proposal=proposal, weighting=weighting)
+
+
+def with_elsewhere(poses_of) -> Callable[[np.ndarray], np.ndarray]:
+    return lambda scan: np.vstack([poses_of(scan), ELSEWHERE])
+
+
+def test_the_gate_opens_only_for_a_hypothesis_that_explains_more_of_the_scan(drive) -> None:
+    traj, ranges = drive
+    gate = VerifiedGate(HypothesisVerifier(GRID, SPEC, VerifierParams()), 0.2)
+    truth, scan, one = traj.truth[10], ranges[10], np.ones(1)
+    at_truth, elsewhere = truth[None], ELSEWHERE[None]
+    assert not gate.opens(scan, at_truth, one, elsewhere)  # the estimate is right
+    assert gate.opens(scan, elsewhere, one, at_truth)  # the truth is offered elsewhere
+    assert not gate.opens(scan, elsewhere, one, elsewhere + [0.05, 0.0, 0.02])  # not away
+    assert not gate.opens(scan, elsewhere, one, np.zeros((0, 3)))  # nothing offered
+    shifted = VerifiedGate(gate.verifier, 0.2, laser_mount=(1.0, 0.0, 0.0))
+    base_behind = (truth - [np.cos(truth[2]), np.sin(truth[2]), 0.0])[None]
+    assert not shifted.opens(scan, base_behind, one, elsewhere)  # the laser pose is scored
+
+
+def test_the_gate_waits_for_persistent_evidence(drive) -> None:
+    traj, ranges = drive
+    gate = VerifiedGate(HypothesisVerifier(GRID, SPEC, VerifierParams()), 0.2, persistence=2)
+    one, elsewhere = np.ones(1), ELSEWHERE[None]
+    wrong = [gate.opens(ranges[k], elsewhere, one, traj.truth[k][None]) for k in (10, 11)]
+    assert wrong == [False, True]
+    assert not gate.opens(ranges[12], traj.truth[12][None], one, elsewhere)  # resets the count
+    assert not gate.opens(ranges[13], elsewhere, one, traj.truth[13][None])
+
+
+def test_the_verified_gate_leaves_a_localized_filter_as_amcl(drive) -> None:
+    """On a clean drive the estimate explains the scan better than the look-alike: no
+    proposal particle is drawn, and the estimates equal amcl's exactly (tolerance 0)."""
+    traj, all_ranges = drive
+    clean = traj.__class__(traj.times[:180], traj.truth[:180], traj.odometry[:180])
+    ranges = all_ranges[:180]
+    amcl = build_filter(
+        GRID, SPEC, ros(**HYBRID_ROS, publish_every_update=True, recovery_alpha_slow=0.0), 0
+    )
+    plain = run_filter(amcl, clean, ranges, "tracking").table
+    pf = gated_hybrid(with_elsewhere(truth_of_scan(traj, all_ranges, 0.05)))
+    gated = run_filter(pf, clean, ranges, "tracking").table
+    assert pf.weighting.mixed_updates == 0 and pf.weighting.updates >= 30
+    assert pf.proposal.inferences == pf.weighting.updates  # the gate asks on every update
+    assert gated.equals(plain)
+
+
+def test_the_verified_gate_draws_proposals_after_a_kidnap(drive) -> None:
+    traj, ranges = drive
+    pf = gated_hybrid(with_elsewhere(truth_of_scan(traj, ranges, 0.05)))
+    table = run_filter(pf, traj, ranges, "tracking").table
+    m = convergence_metrics(traj.truth, table, traj.kidnap_steps)
+    assert m["recovered"] == 1 and m["recovery_steps_1"] <= 10
+    assert 0 < pf.weighting.mixed_updates < 0.2 * pf.weighting.updates
+
+
+def test_the_gate_is_checked() -> None:
+    with pytest.raises(ValueError, match="not both"):
+        HybridParams(verified_gate=True, adaptive_mixing=True)
+    with pytest.raises(ValueError, match="gate_margin"):
+        HybridParams(verified_gate=True, gate_margin=1.5)
+    proposal = LearnedProposal(
+        hypotheses_from(lambda _: ELSEWHERE, 0.1), UniformProposal(GRID), GATED
+    )
+    with pytest.raises(ValueError, match="VerifiedGate"):
+        ImportanceWeights(proposal, GATED)
 
 
 @pytest.mark.slow

@@ -47,6 +47,21 @@ Short- and long-term averages of the mean sensor factor (alphas `adaptive_alpha_
 `_slow`) give lost = 1 - w_fast / w_slow; the share is φ · clip((lost - τ) / (1 - τ), 0, 1)
 with the threshold τ = `adaptive_threshold`, so while the filter is localized (lost ≤ τ) no
 proposal particle is drawn, the update is amcl's, and the network does not run.
+
+The verified gate (`verified_gate`): the share is φ only when the map says the filter is
+elsewhere, else 0. At each update the filter's estimate (the predicted particles' weighted
+mean) and the network's hypotheses are refined against the map and scored by the share of the
+scan they explain (the verifier of hypothesis_verification.py); the gate opens when a
+hypothesis away from the estimate explains at least `gate_margin` more of the scan, on
+`gate_persistence` updates in a row. On real logs the likelihood ratio is no such signal: a
+peaky sensor model's likelihood falls at every pose the map covers poorly. One scan is not
+enough either: where the map misses what the laser sees, a look-alike elsewhere can explain
+more of a scan than the true pose for a scan or two, and proposed particles there capture the
+filter (120 beams' likelihood ratio outweighs any kidnap prior). After a kidnap the mismatch
+lasts. For the first `gate_warmup` updates the gate stays open (the share is φ): at a global
+start the filter may settle on a look-alike that explains the scan almost as well as the
+truth (fr079's parallel corridors), which no margin tells apart but a few more scans of
+proposals do. The network runs on every update (its cost is not amortised).
 """
 
 from __future__ import annotations
@@ -59,8 +74,9 @@ import numba
 import numpy as np
 
 from scanloc.localize.config_params import params_from_config
+from scanloc.localize.hypothesis_verification import HypothesisVerifier
 from scanloc.localize.mcl.proposals import UniformProposal
-from scanloc.pose import wrap_angle, wrap_pi
+from scanloc.pose import compose, wrap_angle, wrap_pi
 
 
 @dataclass(frozen=True)
@@ -82,6 +98,10 @@ class HybridParams:
     adaptive_alpha_fast: float = 0.5
     adaptive_threshold: float = 0.7
     weights_from: str = "network"
+    verified_gate: bool = False
+    gate_margin: float = 0.2
+    gate_persistence: int = 1
+    gate_warmup: int = 0
 
     def __post_init__(self) -> None:
         if self.weights_from not in ("network", "score"):
@@ -99,6 +119,15 @@ class HybridParams:
                 raise ValueError(f"{name} must lie in [0, 1), got {getattr(self, name)}")
         if not (0 < self.adaptive_alpha_slow <= 1 and 0 < self.adaptive_alpha_fast <= 1):
             raise ValueError("adaptive_alpha_slow / _fast must lie in (0, 1]")
+        if self.verified_gate and self.adaptive_mixing:
+            raise ValueError("choose one of adaptive_mixing and verified_gate, not both")
+        if not 0.0 < self.gate_margin < 1.0:
+            raise ValueError(f"gate_margin must lie in (0, 1), got {self.gate_margin}")
+        if self.gate_persistence < 1 or self.gate_warmup < 0:
+            raise ValueError(
+                "need gate_persistence >= 1 and gate_warmup >= 0, got "
+                f"{self.gate_persistence}, {self.gate_warmup}"
+            )
 
     @classmethod
     def from_config(cls, config: Mapping[str, object]) -> HybridParams:
@@ -154,12 +183,13 @@ class LearnedProposal:
         self.stds = np.zeros((0, 3))
         self.weights = np.zeros(0)
         self._scan: np.ndarray | None = None
+        self.scan: np.ndarray | None = None  # the last observed scan
         self.inferences = 0
 
     def observe(self, scan: np.ndarray) -> None:
-        self._scan = scan
+        self._scan = self.scan = scan
 
-    def _condition(self) -> None:
+    def condition(self) -> None:
         """Run the network on the observed scan, once."""
         if self._scan is None:
             if not len(self.weights):
@@ -190,7 +220,7 @@ class LearnedProposal:
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """n poses: each from the uniform share with probability uniform_share, else from a
         hypothesis picked by weight."""
-        self._condition()
+        self.condition()
         uniform = rng.random(n) < self.params.uniform_share
         component = rng.choice(len(self.weights), size=n, p=self.weights)
         poses = self.means[component] + self.stds[component] * rng.standard_normal((n, 3))
@@ -199,20 +229,66 @@ class LearnedProposal:
         return poses
 
     def density(self, poses: np.ndarray) -> np.ndarray:
-        self._condition()
+        self.condition()
         poses = np.ascontiguousarray(poses, dtype=np.float64)
         share = self.params.uniform_share
         mixture = _mixture_density(poses, self.means, self.stds, self.weights)
         return (1.0 - share) * mixture + share * self.uniform.density(poses)
 
 
+class VerifiedGate:
+    """Opens when, on `persistence` calls in a row, a hypothesis away from the filter's
+    estimate explains `margin` more of the scan than the estimate does, both refined against
+    the map (the module docstring). The estimate is a pose of the robot's base; the verifier
+    scores laser poses (base ⊕ `laser_mount`)."""
+
+    def __init__(
+        self,
+        verifier: HypothesisVerifier,
+        margin: float,
+        laser_mount: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        persistence: int = 1,
+    ) -> None:
+        self.verifier, self.margin, self.persistence = verifier, margin, persistence
+        self.laser_mount = np.asarray(laser_mount, dtype=np.float64)
+        self.in_a_row = 0
+
+    def opens(
+        self, scan: np.ndarray, poses: np.ndarray, weights: np.ndarray, hypotheses: np.ndarray
+    ) -> bool:
+        self.in_a_row = self.in_a_row + 1 if self.elsewhere(scan, poses, weights, hypotheses) else 0
+        return self.in_a_row >= self.persistence
+
+    def elsewhere(
+        self, scan: np.ndarray, poses: np.ndarray, weights: np.ndarray, hypotheses: np.ndarray
+    ) -> bool:
+        """Whether this scan alone says the filter is elsewhere."""
+        if not len(hypotheses):
+            return False
+        heading = math.atan2(weights @ np.sin(poses[:, 2]), weights @ np.cos(poses[:, 2]))
+        estimate = compose(np.array([*(weights @ poses[:, :2]), heading]), self.laser_mount)
+        candidates = np.vstack([estimate, hypotheses])
+        refined, features = self.verifier.features(scan, candidates, np.ones(len(candidates)))
+        params = self.verifier.params
+        away = (np.hypot(*(refined[1:, :2] - refined[0, :2]).T) > params.merge_distance) | (
+            np.abs(wrap_angle(refined[1:, 2] - refined[0, 2]))
+            > math.radians(params.merge_angle_deg)
+        )
+        explained = features[:, 0]
+        return bool(away.any() and explained[1:][away].max() - explained[0] >= self.margin)
+
+
 class ImportanceWeights:
     """The hybrid's weighting of proposed particles (see the module docstring): u(x) / q(x) for
     the initialisation's and the recovery's, and the mixture weights of the motion-predicted
-    particles plus the proposal's share at an update."""
+    particles plus the proposal's share at an update. `gate` is needed with `verified_gate`."""
 
-    def __init__(self, proposal: LearnedProposal, params: HybridParams) -> None:
-        self.proposal, self.params = proposal, params
+    def __init__(
+        self, proposal: LearnedProposal, params: HybridParams, gate: VerifiedGate | None = None
+    ) -> None:
+        if params.verified_gate and gate is None:
+            raise ValueError("hybrid proposal: verified_gate needs a VerifiedGate")
+        self.proposal, self.params, self.gate = proposal, params, gate
         self.uniform = proposal.uniform
         p = params
         self.kernel_stds = np.array([p.kernel_std_xy, p.kernel_std_xy, p.kernel_std_theta])
@@ -253,9 +329,15 @@ class ImportanceWeights:
             "n_network_runs": self.proposal.inferences,
         }
 
-    def share(self) -> float:
-        """φ, or with adaptive mixing φ scaled by how far the likelihood fell (module doc)."""
+    def share(self, poses: np.ndarray, weights: np.ndarray) -> float:
+        """φ; with adaptive mixing φ scaled by how far the likelihood fell; with the verified
+        gate φ or 0 (module doc)."""
         p = self.params
+        if p.verified_gate:
+            self.proposal.condition()
+            assert self.gate is not None and self.proposal.scan is not None
+            opens = self.gate.opens(self.proposal.scan, poses, weights, self.proposal.means)
+            return p.mixture_share if opens or self.updates <= p.gate_warmup else 0.0
         if not p.adaptive_mixing:
             return p.mixture_share
         lost = 1.0 - self.w_fast / self.w_slow if self.w_slow > 0.0 else 0.0
@@ -268,7 +350,7 @@ class ImportanceWeights:
         """Add the proposal's share of particles and multiply every carried weight by
         bel⁻ / d (the sensor update follows); with no proposal particle, amcl's update."""
         self.updates += 1
-        share = self.share()
+        share = self.share(poses, weights)
         if share <= 0:
             return poses, weights
         self.mixed_updates += 1

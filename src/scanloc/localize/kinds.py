@@ -21,7 +21,12 @@ from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.estimates import Localization, table_covariances, table_poses
 from scanloc.localize.cnn_localizer import localize_cnn
 from scanloc.localize.fusion import FusionParams, fuse_odometry
-from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal
+from scanloc.localize.hybrid import (
+    HybridParams,
+    ImportanceWeights,
+    LearnedProposal,
+    VerifiedGate,
+)
 from scanloc.localize.hypothesis_tracker import TrackerParams, track_hypotheses
 from scanloc.localize.hypothesis_verification import HypothesisVerifier, VerifierParams
 from scanloc.localize.learned_localizer import (
@@ -140,7 +145,15 @@ def run_hybrid_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localizat
     hypotheses_of, _ = learned_hypotheses(cfg, inputs)
     uniform = UniformProposal(grid, config.map_half_cell_offset)
     proposal = LearnedProposal(hypotheses_of, uniform, hybrid)
-    weighting = ImportanceWeights(proposal, hybrid)
+    gate = None
+    if hybrid.verified_gate:
+        verifier = HypothesisVerifier(
+            grid, inputs.laser, VerifierParams.from_config(dict(cfg.get("verify") or {}))
+        )
+        gate = VerifiedGate(
+            verifier, hybrid.gate_margin, inputs.laser_mount, hybrid.gate_persistence
+        )
+    weighting = ImportanceWeights(proposal, hybrid, gate)
     pf = build_filter(
         grid,
         inputs.laser,
