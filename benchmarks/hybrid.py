@@ -13,14 +13,17 @@ model.pt, from `dvc repro train_scanlocnet@sparse_obstacles`) when it exists, el
 one of conf/scanlocnet.yaml's architecture. An untrained network decodes more slowly (its
 branch and bound prunes little), so its figures are a worst case; the JSON names which ran.
 
-Three hybrids, with the proposal settings conf/localizer ships (hybrid.yaml's `proposal`, and
-hybrid_adaptive.yaml's over it): the constant share (`mixture_share` of particles from the
-proposal, and so the network, on every update), the adaptive one (hybrid.py's adaptive
-mixing: the network runs only on updates whose share is > 0, so its cost is amortised; on this
-clean drive from a known pose it should not need the network at all), and the verified one
-(hybrid_verified.yaml: the constant share with every scan's hypotheses verified against the
-map; uncalibrated here, which costs the same). Each reports the share of updates that ran the
-network; its Hz include the network's (and verification's) cost where it ran.
+Four hybrids, with the proposal settings conf/localizer ships (hybrid.yaml's `proposal`, and
+hybrid_adaptive.yaml's, hybrid_verified.yaml's or hybrid_real.yaml's over it): the constant
+share (`mixture_share` of particles from the proposal, and so the network, on every update),
+the adaptive one (hybrid.py's adaptive mixing: the network runs only on updates whose share
+is > 0, so its cost is amortised; on this clean drive from a known pose it should not need the
+network at all), the verified one (hybrid_verified.yaml: the constant share with every scan's
+hypotheses verified against the map; uncalibrated here, which costs the same), and the gated
+one (hybrid_real.yaml's verified gate: the network and the gate's verification of the estimate
+and the hypotheses on every update, proposals only when the gate opens). Each reports the share
+of updates that ran the network; its Hz include the network's (and verification's) cost where
+it ran.
 
 Run: python benchmarks/hybrid.py [--quick] [--model PATH]. Last line: JSON.
 """
@@ -44,7 +47,12 @@ from amcl import (  # benchmarks/amcl.py, beside this script
     median_update_s,
     params_for,
 )
-from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal
+from scanloc.localize.hybrid import (
+    HybridParams,
+    ImportanceWeights,
+    LearnedProposal,
+    VerifiedGate,
+)
 from scanloc.localize.hypothesis_verification import HypothesisVerifier, VerifierParams
 from scanloc.localize.learned_localizer import scan_hypotheses, verified
 from scanloc.localize.mcl.config import MclConfig, build_filter
@@ -84,7 +92,7 @@ def shipped(name: str) -> dict:
 
 
 def shipped_hybrids() -> dict[str, tuple[HybridParams, bool]]:
-    """The three hybrids' proposal settings as conf/localizer ships them, and whether each
+    """The four hybrids' proposal settings as conf/localizer ships them, and whether each
     verifies its hypotheses."""
     constant = shipped("hybrid")["proposal"]
     return {
@@ -96,6 +104,10 @@ def shipped_hybrids() -> dict[str, tuple[HybridParams, bool]]:
         "verified_hybrid": (
             HybridParams.from_config(constant | shipped("hybrid_verified").get("proposal", {})),
             True,
+        ),
+        "gated_hybrid": (
+            HybridParams.from_config(constant | shipped("hybrid_real")["proposal"]),
+            False,
         ),
     }
 
@@ -150,7 +162,13 @@ def main() -> None:
             proposal = LearnedProposal(
                 verified_of if verify else hypotheses_of, UniformProposal(grid), hybrid
             )
-            weighting = ImportanceWeights(proposal, hybrid)
+            gate = None
+            if hybrid.verified_gate:
+                gate_verifier = HypothesisVerifier(grid, spec, VerifierParams())
+                gate = VerifiedGate(
+                    gate_verifier, hybrid.gate_margin, persistence=hybrid.gate_persistence
+                )
+            weighting = ImportanceWeights(proposal, hybrid, gate)
             filter_ = build_filter(grid, spec, config, 0, proposal=proposal, weighting=weighting)
             filter_.initialize_pose(odom[0])
             hybrid_s = median_update_s(filter_, odom, ranges, repeats, per_repeat)

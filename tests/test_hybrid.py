@@ -317,7 +317,7 @@ def test_the_gate_opens_only_for_a_hypothesis_that_explains_more_of_the_scan(dri
     at_truth, elsewhere = truth[None], ELSEWHERE[None]
     assert not gate.opens(scan, at_truth, one, elsewhere)  # the estimate is right
     assert gate.opens(scan, elsewhere, one, at_truth)  # the truth is offered elsewhere
-    assert not gate.opens(scan, elsewhere, one, elsewhere + [0.05, 0.0, 0.02])  # not away
+    assert not gate.opens(scan, elsewhere, one, elsewhere + np.array([0.05, 0.0, 0.02]))  # not away
     assert not gate.opens(scan, elsewhere, one, np.zeros((0, 3)))  # nothing offered
     shifted = VerifiedGate(gate.verifier, 0.2, laser_mount=(1.0, 0.0, 0.0))
     base_behind = (truth - [np.cos(truth[2]), np.sin(truth[2]), 0.0])[None]
@@ -373,10 +373,10 @@ def test_the_gate_is_checked() -> None:
 
 
 @pytest.mark.slow
-def test_benchmark_quick_run_reports_the_three_hybrids(quick_benchmark) -> None:
+def test_benchmark_quick_run_reports_the_four_hybrids(quick_benchmark) -> None:
     figures = quick_benchmark("hybrid.py")
     assert figures["network_ms_median"] > 0 and figures["verification_ms_median"] > 0
-    for label in ("hybrid", "adaptive_hybrid", "verified_hybrid"):
+    for label in ("hybrid", "adaptive_hybrid", "verified_hybrid", "gated_hybrid"):
         for size in ("1k", "5k"):
             assert figures[f"{label}_hz_{size}"] > 0
             assert 0.0 <= figures[f"{label}_network_share_{size}"] <= 1.0
