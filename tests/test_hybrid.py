@@ -322,6 +322,12 @@ def test_the_gate_opens_only_for_a_hypothesis_that_explains_more_of_the_scan(dri
     shifted = VerifiedGate(gate.verifier, 0.2, laser_mount=(1.0, 0.0, 0.0))
     base_behind = (truth - [np.cos(truth[2]), np.sin(truth[2]), 0.0])[None]
     assert not shifted.opens(scan, base_behind, one, elsewhere)  # the laser pose is scored
+    # hypotheses are base poses too: with a laser turned 90° on the robot, the base pose whose
+    # laser sees the scan opens a strict gate; taken for a laser pose, it is 90° off
+    turned = VerifiedGate(gate.verifier, 0.5, laser_mount=(0.0, 0.0, np.pi / 2))
+    base_turned = (truth - [0.0, 0.0, np.pi / 2])[None]
+    assert turned.opens(scan, elsewhere, one, base_turned)
+    assert not VerifiedGate(gate.verifier, 0.5).opens(scan, elsewhere, one, base_turned)
 
 
 def test_the_gate_waits_for_persistent_evidence(drive) -> None:

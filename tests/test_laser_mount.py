@@ -1,16 +1,23 @@
 """The laser's mounting on the robot in the sensor models: beams are cast from base ⊕ mount
-(ROS amcl's tf), and a zero mount leaves every model's factors unchanged."""
+(ROS amcl's tf), and a zero mount leaves every model's factors unchanged; the learned
+localizers' laser-pose hypotheses are turned into base poses."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from scanloc.localize import kinds
+from scanloc.localize.kinds import LocalizeInputs
+from scanloc.localize.learned_localizer import in_base_frame
 from scanloc.localize.mcl.config import build_filter
 from scanloc.pose import compose, wrap_angle
+from scanloc.scanlocnet.model import Hypotheses
 from scanloc.stages.localize import laser_mount
+from scanloc.trajectory.format import Trajectory
 from small_world import SPEC, small_map, ug01_scans
 from test_amcl import ros
 
@@ -70,3 +77,35 @@ def test_the_mount_is_read_from_meta_json(tmp_path) -> None:
     (tmp_path / "meta.json").write_text(json.dumps({"laser_mount": [0.1, 0.2]}))
     with pytest.raises(ValueError, match=r"meta.json: field 'laser_mount': expected \[x, y, yaw\]"):
         laser_mount(tmp_path)
+
+
+def _laser_hypotheses(bases: np.ndarray):
+    """A stand-in for the network: the laser poses (base ⊕ MOUNT) of known bases, as one
+    scan's K hypotheses."""
+    lasers = np.array([compose(b, np.array(MOUNT)) for b in bases])
+    return lambda scan: Hypotheses(
+        poses=lasers[None], weights=np.full((1, len(bases)), 0.1), stds=np.ones((1, len(bases), 3))
+    )
+
+
+def test_learned_hypotheses_are_turned_into_base_poses() -> None:
+    """What the network finds is the laser's pose; the run's truth is the base's."""
+    bases = np.array([[3.0, 2.4, 0.5], [1.0, 1.0, -3.0], [4.0, 0.5, 3.1]])
+    of_base = in_base_frame(_laser_hypotheses(bases), MOUNT)
+    hyp = of_base(np.zeros(SPEC.num_beams))
+    assert np.allclose(hyp.poses[0], bases, atol=1e-12)
+    assert hyp.weights.shape == (1, 3) and hyp.stds.shape == (1, 3, 3)
+    on_base = _laser_hypotheses(bases)
+    assert in_base_frame(on_base, (0.0, 0.0, 0.0)) is on_base  # simulated maps: untouched
+
+
+def test_every_learned_kind_gets_base_poses_from_a_mounted_laser(monkeypatch) -> None:
+    """kinds.learned_hypotheses (behind the learned, tracking and hybrid kinds) applies the
+    run's mount to the network's hypotheses."""
+    bases = np.array([[3.0, 2.4, 0.5], [1.0, 1.0, -3.0]])
+    network = _laser_hypotheses(bases)
+    monkeypatch.setattr(kinds, "scan_hypotheses", lambda *a, **k: (None, network, 0.0))
+    traj = Trajectory(np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
+    inputs = LocalizeInputs(traj, np.zeros((1, SPEC.num_beams)), Path("m.yaml"), SPEC, MOUNT)
+    hypotheses_of, _ = kinds.learned_hypotheses({"name": "mine", "model": "m.pt"}, inputs)
+    assert np.allclose(hypotheses_of(np.zeros(SPEC.num_beams)).poses[0], bases, atol=1e-12)

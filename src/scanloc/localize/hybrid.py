@@ -239,8 +239,8 @@ class LearnedProposal:
 class VerifiedGate:
     """Opens when, on `persistence` calls in a row, a hypothesis away from the filter's
     estimate explains `margin` more of the scan than the estimate does, both refined against
-    the map (the module docstring). The estimate is a pose of the robot's base; the verifier
-    scores laser poses (base ⊕ `laser_mount`)."""
+    the map (the module docstring). The estimate and the hypotheses are poses of the robot's
+    base; the verifier scores laser poses (base ⊕ `laser_mount`)."""
 
     def __init__(
         self,
@@ -266,8 +266,10 @@ class VerifiedGate:
         if not len(hypotheses):
             return False
         heading = math.atan2(weights @ np.sin(poses[:, 2]), weights @ np.cos(poses[:, 2]))
-        estimate = compose(np.array([*(weights @ poses[:, :2]), heading]), self.laser_mount)
+        estimate = np.array([*(weights @ poses[:, :2]), heading])
         candidates = np.vstack([estimate, hypotheses])
+        if any(self.laser_mount):
+            candidates = np.array([compose(p, self.laser_mount) for p in candidates])
         refined, features = self.verifier.features(scan, candidates, np.ones(len(candidates)))
         params = self.verifier.params
         away = (np.hypot(*(refined[1:, :2] - refined[0, :2]).T) > params.merge_distance) | (

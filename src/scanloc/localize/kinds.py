@@ -31,6 +31,7 @@ from scanloc.localize.hypothesis_tracker import TrackerParams, track_hypotheses
 from scanloc.localize.hypothesis_verification import HypothesisVerifier, VerifierParams
 from scanloc.localize.learned_localizer import (
     fit_calibration,
+    in_base_frame,
     localize_learned,
     scan_hypotheses,
     verified,
@@ -86,8 +87,8 @@ def is_seeded(cfg: Mapping[str, Any]) -> bool:
 class LocalizeInputs:
     """What a localizer sees: the run (times, odometry; truth only to start tracking), its
     scans, the map, the laser and where the laser sits on the robot (x, y, θ in the base
-    frame; the particle filters cast beams from base ⊕ mount, the learned localizers take the
-    scans as they are)."""
+    frame; the particle filters cast beams from base ⊕ mount, the learned localizers turn
+    the laser poses they find into base poses: learned_localizer.in_base_frame)."""
 
     trajectory: Trajectory
     ranges: np.ndarray
@@ -209,7 +210,8 @@ def learned_hypotheses(
     """(per-scan hypotheses function, setup seconds) of a config with a learned model: its
     ranked hypotheses, verified against the map when the config has a `verify` section (the
     calibration fitted on `calibration_count` of the `calibration_scans` dataset's validation
-    scans, evenly spaced: scans no evaluation scores)."""
+    scans, evenly spaced: scans no evaluation scores). The network and the verifier work in
+    the laser's frame; what the function returns are poses of the robot's base."""
     start = time.perf_counter()
     for field in ("calibration_scans", "calibration_count") if cfg.get("verify") else ():
         if cfg.get(field) is None:
@@ -219,7 +221,7 @@ def learned_hypotheses(
             )
     _, hypotheses_of, _ = scan_hypotheses(Path(cfg["model"]), inputs.ranges, **learned_options(cfg))
     if not cfg.get("verify"):
-        return hypotheses_of, time.perf_counter() - start
+        return in_base_frame(hypotheses_of, inputs.laser_mount), time.perf_counter() - start
     verifier = HypothesisVerifier(
         inputs.grid, inputs.laser, VerifierParams.from_config(dict(cfg["verify"]))
     )
@@ -229,7 +231,8 @@ def learned_hypotheses(
     verifier.calibration, _ = fit_calibration(
         hypotheses_of, verifier, np.asarray(data.ranges[pick]), data.poses[pick]
     )
-    return verified(hypotheses_of, verifier), time.perf_counter() - start
+    checked = verified(hypotheses_of, verifier)
+    return in_base_frame(checked, inputs.laser_mount), time.perf_counter() - start
 
 
 @register_kind("learned")

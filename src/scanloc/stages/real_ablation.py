@@ -18,6 +18,7 @@ from scanloc.sensor.corruptions import KINDS
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
 from scanloc.stages.group_files import load_group_files
+from scanloc.stages.localize import laser_mount
 from scanloc.stages.train_scanlocnet import train
 from scanloc.trajectory.format import load_trajectory
 
@@ -44,9 +45,10 @@ def score_on_run(cfg: DictConfig, model: Path) -> dict[str, float]:
     """The evaluation's metrics (scanloc.evaluate.table2.evaluate_all) of the model's hypotheses
     on the run's scans, raw (top-1/5/20 recall) and verified (top-1 recall, its median error
     and calibration error)."""
-    trajectory, ranges = load_trajectory(Path(cfg.run_dir))
+    run_dir = Path(cfg.run_dir)
+    trajectory, ranges = load_trajectory(run_dir)
     laser = laser_spec_from_config(to_dict(cfg.sensor))
-    inputs = LocalizeInputs(trajectory, ranges, Path(cfg.map_yaml), laser)
+    inputs = LocalizeInputs(trajectory, ranges, Path(cfg.map_yaml), laser, laser_mount(run_dir))
     calibration = str(cfg.val_dataset)
     runs = {
         name: run_localizer(localizer_config(name, model, calibration), inputs)
