@@ -16,6 +16,7 @@ import pytest
 import yaml
 from omegaconf import OmegaConf
 
+from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.pose import compose, inverse
 from scanloc.real.carmen import CarmenFormatError, read_carmen_log
 from scanloc.real.carmen_odometry import scan_odometry
@@ -232,7 +233,7 @@ def test_the_stage_maps_only_the_mapping_part_of_a_third_log(tmp_path: Path, roo
     args = [f"{k}={out / v}" for k, v in [
         ("map_dir", "maps/third"), ("real_dir", "third_real"), ("sim_dir", "third_sim"),
         ("kidnap_dir", "third_kidnap"), ("tune_dir", "third_tune"),
-        ("tune_heldout_dir", "third_tune_heldout"),
+        ("tune_heldout_dir", "third_tune_heldout"), ("mapping_scans_dir", "third_mapping"),
         ("metrics_file", "real_third.json"), ("timing_dir", "timing"),
     ]]  # fmt: skip
     stage = [sys.executable, "-m", "scanloc.stages.real", "log_name=third"]
@@ -276,6 +277,11 @@ def test_the_stage_maps_only_the_mapping_part_of_a_third_log(tmp_path: Path, roo
     )  # fmt: skip
     tune_map = load_map(out / "third_tune_heldout" / "map" / "map.yaml")
     assert tune_map.cells.tobytes() == rest_map.cells.tobytes()
+    # the mapping part's real scans for training: laser poses, the hold-out as validation
+    mapping = load_scan_dataset(out / "third_mapping")
+    assert np.allclose(mapping.poses, lasers[kept], atol=1e-6)  # the laser, not the base
+    assert np.array_equal(np.asarray(mapping.ranges), ranges[kept].astype(np.float32))
+    assert np.array_equal(np.flatnonzero(mapping.is_val), np.flatnonzero(np.isin(kept, held)))
 
 
 def test_an_entry_may_name_a_sensor_override(tmp_path: Path, monkeypatch) -> None:

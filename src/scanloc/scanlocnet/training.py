@@ -47,6 +47,7 @@ from scanloc.pose import recall_within
 from scanloc.progress import interactive
 from scanloc.scanlocnet.model import ScanLocNet, top_k
 from scanloc.scanlocnet.pose_grid import PoseGrid
+from scanloc.scanlocnet.real_scans import RealScans
 from scanloc.scanlocnet.resume import (
     EpochCheckpoint,
     TrainingStopped,
@@ -112,12 +113,21 @@ def scanlocnet_loss(model: ScanLocNet, ranges: Tensor, target: Mapping[str, Tens
 
 
 class _Epochs:
-    """One epoch of training batches from the stream; Lightning calls set_epoch (`.sampler`)."""
+    """One epoch of training batches from the stream (with the real scans mixed in, if any);
+    Lightning calls set_epoch (`.sampler`)."""
 
     batch_sampler = None
 
-    def __init__(self, stream: ScanStream, grid: PoseGrid, batch_size: int, seed: int) -> None:
+    def __init__(
+        self,
+        stream: ScanStream,
+        grid: PoseGrid,
+        batch_size: int,
+        seed: int,
+        real: RealScans | None = None,
+    ) -> None:
         self.stream, self.grid, self.batch_size, self.seed = stream, grid, batch_size, seed
+        self.real = real
         self.epoch = 0
         n = stream.spec.scans_per_epoch
         self.n_batches = n // batch_size  # full batches only: BatchNorm needs > 1 sample
@@ -134,6 +144,8 @@ class _Epochs:
 
     def __iter__(self) -> Iterator[tuple[Tensor, dict[str, Tensor]]]:
         ranges, poses = self.stream.epoch(self.epoch)
+        if self.real is not None:
+            ranges, poses = self.real.mix_into(ranges, poses, self.seed, self.epoch)
         x = torch.from_numpy(ranges)
         y = encode_targets(self.grid, poses, f"training epoch {self.epoch}")
         order = torch.randperm(
@@ -298,11 +310,13 @@ def fit_scanlocnet(
     trainer_cfg: Mapping[str, Any] | None,
     max_val: int | None = None,
     checkpoint_dir: Path | None = None,
+    real_scans: RealScans | None = None,
 ) -> dict[str, Any]:
     """Train ScanLocNet for `grid` on the stream and validate on `val_dataset`'s validation
     split, resuming from checkpoint_dir/<key>/last.ckpt where there is one (see the module
     docstring; checkpoint_dir None: no checkpoints kept). Returns the metrics; raises
-    TrainingStopped on SIGINT or SIGTERM."""
+    TrainingStopped on SIGINT or SIGTERM. `real_scans`: real scans mixed into every epoch.
+    """
     if epochs < 1 or batch_size < 2 or stream.scans_per_epoch < batch_size:
         raise ValueError(
             f"need epochs >= 1, batch_size >= 2 and scans_per_epoch >= batch_size, got {epochs}, "
@@ -331,6 +345,8 @@ def fit_scanlocnet(
         "precision": kwargs["precision"],  # "auto" resolved on this machine
         "max_val": max_val,
     }
+    if real_scans is not None:  # absent otherwise: the keys of earlier runs stay valid
+        config["real_scans"] = {"share": real_scans.share, "digest": real_scans.digest}
     key = "" if checkpoint_dir is None else run_key(config, stream, Path(val_dataset))
     saver: EpochCheckpoint | None = None
     try:
@@ -356,13 +372,15 @@ def fit_scanlocnet(
             )
             resume = saver.path if saver.path.is_file() else None
             with ScanStream(stream) as scans:
-                batches = _Epochs(scans, grid, batch_size, stream.seed)
+                batches = _Epochs(scans, grid, batch_size, stream.seed, real_scans)
                 trainer.fit(module, train_dataloaders=batches, ckpt_path=resume, weights_only=True)
             if len(module.history) != epochs:
                 raise RuntimeError(
                     f"{saver.path}: holds {len(module.history)} epochs, expected {epochs}"
                 )
             metrics = run_metrics(module, stream.scans_per_epoch, batch_size, kwargs["precision"])
+            if real_scans is not None:
+                metrics |= {"real_scans": len(real_scans.ranges), "real_share": real_scans.share}
             with atomic_dir(out_dir) as tmp:
                 save_model(tmp / "model.pt", cfg, model.state_dict())
                 write_history(tmp / "history.csv", module.history)

@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 from omegaconf import DictConfig
 
+from scanloc.data.scan_dataset import save_scan_dataset
 from scanloc.io import write_json
 from scanloc.real.carmen import CarmenLog, read_carmen_log
 from scanloc.real.carmen_laser import clean_ranges
@@ -126,6 +127,33 @@ def split_metrics(
     if split.optimistic:
         out["split"]["note"] = "optimistic: the map holds every evaluated scan"
     return out
+
+
+def save_mapping_scans(
+    out_dir: Path,
+    ranges: np.ndarray,
+    laser_truth: np.ndarray,
+    mapping: np.ndarray,
+    tune_heldout: np.ndarray,
+    meta: dict,
+) -> None:
+    """The mapping part's real scans with their laser poses as a scan dataset (data/scans/
+    <log>_mapping), for the learned localizer's training stream: the tune map's scans are its
+    training split, the tune hold-out's its validation split (never trained on: the scans its
+    settings are chosen on). No scan of the evaluation part is in it."""
+    is_val = np.isin(mapping, tune_heldout)
+    save_scan_dataset(
+        out_dir,
+        ranges[mapping],
+        laser_truth[mapping],
+        is_val,
+        meta
+        | {
+            "source": "real scans of the log's mapping part (validation: the tune hold-out)",
+            "poses_frame": "laser (the corrected poses of the log)",
+            "log_scans": segments_of(mapping),
+        },
+    )
 
 
 @stage_main("real")
@@ -262,6 +290,10 @@ def main(cfg: DictConfig) -> None:
             "uncovered_steps": tune_cover["uncovered_steps"],
         }
         save_trajectory(traj, heldout_dir, ranges[index], heldout_meta, tune_grid)
+        save_mapping_scans(
+            Path(cfg.mapping_scans_dir), ranges, laser_truth, m, tune_heldout,
+            meta | {"name": f"{cfg.log_name}_mapping", "seed": int(cfg.seed)},
+        )  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """`train_scanlocnet` stage (beyond the paper): the learned localizer with ranked hypotheses for
-one map, trained on scans simulated afresh every epoch (scanloc.scanlocnet.training).
+one map, trained on scans simulated afresh every epoch (scanloc.scanlocnet.training), for a
+real log with its mapping part's real scans mixed in (`real_scans`).
 
 Ctrl-C (SIGINT) or SIGTERM stops it within moments with one line on stderr and exit status
 128 + the signal's number, nothing written; the same command resumes after the last finished
@@ -11,14 +12,19 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 from omegaconf import DictConfig
 
+from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.hardware import split_machine_figures
 from scanloc.io import write_json
+from scanloc.models.training import load_model
+from scanloc.scanlocnet.model import top_k
 from scanloc.scanlocnet.pose_grid import PoseGrid
+from scanloc.scanlocnet.real_scans import load_real_scans
 from scanloc.scanlocnet.resume import TrainingStopped
 from scanloc.scanlocnet.scan_stream import StreamSpec
-from scanloc.scanlocnet.training import fit_scanlocnet
+from scanloc.scanlocnet.training import RECALL_K, fit_scanlocnet, hypothesis_metrics
 from scanloc.sensor.corruptions import KINDS
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.stages.group_files import load_group_files
@@ -37,6 +43,19 @@ def stream_corruptions(cfg: DictConfig) -> dict:
         else:
             raise ValueError(f"corruptions_off: expected some of {[*KINDS, 'noise']}, got {kind!r}")
     return corruptions
+
+
+def tune_holdout_metrics(dataset: Path, model_path: Path) -> dict[str, float]:
+    """The trained model's top-1 errors and top-K recall on a real-scans dataset's validation
+    split (a log's tune hold-out: real scans it never trained on, where `real_scans.share` is
+    chosen), keys prefixed `tune_heldout_`."""
+    data = load_scan_dataset(dataset)
+    rows = np.flatnonzero(data.is_val)
+    model = load_model(model_path)
+    ranges = np.ascontiguousarray(data.ranges[rows], dtype=np.float32)
+    hyp = top_k(model, ranges, max(RECALL_K))
+    figures = hypothesis_metrics(hyp.poses, np.asarray(data.poses[rows]), "tune_heldout_")
+    return figures | {"tune_heldout_scans": len(rows)}
 
 
 def train(cfg: DictConfig, out_dir: Path) -> tuple[dict, dict]:
@@ -58,6 +77,12 @@ def train(cfg: DictConfig, out_dir: Path) -> tuple[dict, dict]:
         seed=int(run.seed),
         corruptions=stream_corruptions(cfg),
     )
+    real = cfg.get("real_scans") or {}
+    real_scans = None
+    if real.get("dataset") and real.get("share"):
+        real_scans = load_real_scans(
+            Path(real["dataset"]), grid, float(real["share"]), stream.num_beams
+        )
     try:
         metrics = fit_scanlocnet(
             model_cfg=to_dict(cfg.net),
@@ -72,10 +97,13 @@ def train(cfg: DictConfig, out_dir: Path) -> tuple[dict, dict]:
             pct_start=float(run.pct_start),
             trainer_cfg=to_dict(cfg.trainer),
             checkpoint_dir=Path(cfg.checkpoint_dir),
+            real_scans=real_scans,
         )
     except TrainingStopped as stop:
         print(f"train_scanlocnet {cfg.map_name}: {stop}", file=sys.stderr)
         sys.exit(128 + stop.signum)
+    if real.get("dataset"):
+        metrics |= tune_holdout_metrics(Path(real["dataset"]), out_dir / "model.pt")
     return split_machine_figures(metrics)
 
 
