@@ -1,6 +1,7 @@
 """`train_scanlocnet` stage (beyond the paper): the learned localizer with ranked hypotheses for
-one map, trained on scans simulated afresh every epoch (scanloc.scanlocnet.training), for a
-real log with its mapping part's real scans mixed in (`real_scans`).
+one map, trained on scans simulated afresh every epoch (scanloc.scanlocnet.training); for a
+real log also scored on its mapping part's tune hold-out (`real_scans.dataset`), and trained
+with that part's real scans mixed in where `real_scans.share` > 0 (off by default).
 
 Ctrl-C (SIGINT) or SIGTERM stops it within moments with one line on stderr and exit status
 128 + the signal's number, nothing written; the same command resumes after the last finished
