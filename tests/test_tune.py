@@ -104,3 +104,34 @@ def test_the_command_runs_a_study(tmp_path: Path) -> None:
     assert all(t["pos_err_rmse_m"] < 0.5 for t in trials)  # amcl tracks the small room
     with pytest.raises(KeyError):
         trials[0]["steps_to_converge"]  # the tracking objective's figures only
+
+
+@pytest.mark.parametrize("study_file", sorted((REPO / "conf" / "study").glob("*.yaml")), ids=str)
+def test_every_study_names_what_the_tune_command_reads(study_file: Path) -> None:
+    """A study file's typo would surface only minutes into a run (or never, for a factor key
+    the filter ignores): its name, objective, run entries and every top-level key it tries (a
+    filter parameter or a localizer config's key) are checked up front."""
+    import yaml
+
+    from scanloc.localize.mcl.config import known_keys
+
+    study = yaml.safe_load(study_file.read_text())
+    assert study["name"] == study_file.stem
+    assert study["objective"] in tune.OBJECTIVES
+    assert (REPO / "conf" / "localizer" / f"{study['localizer']}.yaml").is_file()
+    for run in study["runs"]:
+        assert {"run_dir", "map_name"} <= set(run) <= {
+            "run_dir", "map_name", "map_yaml", "sensor_file", "odometry"
+        }  # fmt: skip
+        assert run.get("odometry", "wheel") in ("wheel", "laser")
+        assert str(run["run_dir"]).startswith("data/trajectories/")
+    localizer_keys = {
+        key
+        for path in (REPO / "conf" / "localizer").glob("*.yaml")
+        for key in yaml.safe_load(path.read_text())
+    }
+    filter_keys = set(known_keys()) | localizer_keys | {tune.FITTED_SCALE_KEY}
+    for factor, options in study["factors"].items():
+        for option in options:
+            unknown = {k for k in option if "." not in k} - filter_keys
+            assert not unknown, f"{study_file.name}: factor {factor} sets unknown keys {unknown}"
