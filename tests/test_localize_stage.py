@@ -207,14 +207,16 @@ IDENTITY = {"name", "kind", "group", "stages", "global_table", "note", "mode"}
     ("hybrid", "baseline"), [("hybrid_real", "amcl_real"), ("hybrid_verified", "hybrid")]
 )
 def test_matched_pairs_differ_only_in_what_they_claim(hybrid: str, baseline: str) -> None:
-    """hybrid_real is amcl_real's filter plus the learned proposal, which takes over amcl's
-    recovery (its gate lets the proposal in); hybrid_verified is the hybrid plus verification:
-    every other filter key the baseline sets is equal."""
+    """hybrid_real is amcl_real's filter (recovery off) plus the learned proposal, let in by
+    its gate and by amcl's w_fast recovery (alpha_slow 0: the first update's mean weight is the
+    long-term one); hybrid_verified is the hybrid plus verification: every other filter key
+    the baseline sets is equal."""
     ours, theirs = composed_localizer(hybrid), composed_localizer(baseline)
-    claimed = {"recovery_alpha_slow"} if hybrid == "hybrid_real" else set()
+    claimed = {"recovery_alpha_fast"} if hybrid == "hybrid_real" else set()
     differing = {key for key in theirs if key not in IDENTITY and ours.get(key) != theirs.get(key)}
     assert differing == claimed, f"{hybrid} and {baseline} differ in {sorted(differing)}"
     if hybrid == "hybrid_real":
+        assert theirs["recovery_alpha_slow"] == theirs["recovery_alpha_fast"] == 0
         assert ours["recovery_alpha_slow"] == 0 and ours["proposal"]["verified_gate"]
     if hybrid == "hybrid_verified":
         assert set(ours) - set(theirs) == {"verify", "calibration_scans", "calibration_count"}
