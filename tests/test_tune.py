@@ -67,6 +67,20 @@ def test_coordinate_descent_keeps_only_what_lowers_the_score(monkeypatch) -> Non
     assert trials[3]["score"] == 0.0 and sorted(trials[0]["runs"]) == ["r/s0", "r/s1"]
 
 
+def test_a_gain_below_min_gain_keeps_the_earlier_choice(monkeypatch) -> None:
+    def toy(config: Mapping[str, Any], inputs: Any) -> dict[str, float]:
+        return {"score": abs(config["a"] - 3) + config["c"] + 10.0}
+
+    monkeypatch.setitem(tune.OBJECTIVES, "toy", toy)
+    run = tune.TuneRun("r", None, {"a": 0, "c": 1})  # type: ignore[arg-type]
+    factors = {"a": [{"a": 3}], "c": [{"c": 0}]}  # 14 -> 11 (a gain of 21 %), then -> 10 (9 %)
+    assert tune.coordinate_descent(factors, [0] * 4, [run], [0], "toy")[0] == {"a": 3, "c": 0}
+    chosen, trials = tune.coordinate_descent(factors, [0] * 4, [run], [0], "toy", min_gain=0.1)
+    assert chosen == {"a": 3} and [t["kept"] for t in trials] == [True, True, False]
+    with pytest.raises(ValueError, match="min_gain"):
+        tune.coordinate_descent(factors, [0] * 4, [run], [0], "toy", min_gain=1.0)
+
+
 def test_tracking_cuts_a_run_at_its_kidnaps() -> None:
     traj = Trajectory(
         times=np.arange(6.0), truth=np.zeros((6, 3)), odometry=np.zeros((6, 3)), kidnap_steps=(2, 5)

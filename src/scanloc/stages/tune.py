@@ -171,10 +171,17 @@ def coordinate_descent(
     seeds: Sequence[int],
     objective: str,
     passes: int = 1,
+    min_gain: float = 0.0,
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The chosen keys and every trial, in order (module doc): up to `passes` sweeps over the
     factors, stopping after a sweep that keeps nothing (a later factor's choice can change
-    which option of an earlier one is best)."""
+    which option of an earlier one is best). An option is kept when it lowers the best score
+    so far by more than the fraction `min_gain` of it (0: by anything), so that a margin
+    inside the seeds' noise does not decide a factor."""
+    if not 0.0 <= min_gain < 1.0:
+        raise ValueError(
+            f"conf/tune.yaml: field 'min_gain': expected a fraction in [0, 1), got {min_gain}"
+        )
     base = runs[0].localizer
     chosen: dict[str, Any] = {}
     scored: dict[str, dict[str, Any]] = {}  # by the whole config: none is run twice
@@ -195,7 +202,7 @@ def coordinate_descent(
                 if with_keys(base, chosen | keys) == with_keys(base, chosen):
                     continue  # the current setting: already scored
                 result = score(chosen | keys)
-                kept = result["score"] < best["score"]
+                kept = result["score"] < best["score"] * (1.0 - min_gain)
                 trials.append(
                     {"factor": factor, "option": keys, "pass": sweep, **result, "kept": kept}
                 )
@@ -260,7 +267,13 @@ def main(cfg: DictConfig) -> None:
     fitted = fit_odometry_alphas(first.odometry, first.truth, first.kidnap_steps)
     seeds = [int(s) for s in study.get("seeds", cfg.seeds)]
     chosen, trials = coordinate_descent(
-        study["factors"], fitted, runs, seeds, study["objective"], int(cfg.passes)
+        study["factors"],
+        fitted,
+        runs,
+        seeds,
+        study["objective"],
+        int(cfg.passes),
+        float(study.get("min_gain", cfg.min_gain)),
     )
     result = {
         "study": study["name"],
