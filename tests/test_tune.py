@@ -14,8 +14,10 @@ from typing import Any
 
 import numpy as np
 import pytest
+import yaml
 
 from scanloc.localize.kinds import LocalizeInputs
+from scanloc.localize.mcl.config import known_keys
 from scanloc.stages import tune
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import Trajectory, save_trajectory
@@ -81,6 +83,14 @@ def test_a_gain_below_min_gain_keeps_the_earlier_choice(monkeypatch) -> None:
         tune.coordinate_descent(factors, [0] * 4, [run], [0], "toy", min_gain=1.0)
 
 
+def test_a_misspelt_run_entry_is_refused_with_its_study() -> None:
+    with pytest.raises(ValueError, match=r"study\.yaml: field 'runs'.*unknown keys \['map_yml'\]"):
+        tune.check_run_entry({"run_dir": "r", "map_name": "m", "map_yml": "x"}, "study.yaml")
+    with pytest.raises(ValueError, match=r"lacks \['map_name'\]"):
+        tune.check_run_entry({"run_dir": "r"}, "study.yaml")
+    tune.check_run_entry({"run_dir": "r", "map_name": "m", "odometry": "laser"}, "study.yaml")
+
+
 def test_tracking_cuts_a_run_at_its_kidnaps() -> None:
     traj = Trajectory(
         times=np.arange(6.0), truth=np.zeros((6, 3)), odometry=np.zeros((6, 3)), kidnap_steps=(2, 5)
@@ -123,21 +133,15 @@ def test_the_command_runs_a_study(tmp_path: Path) -> None:
 @pytest.mark.parametrize("study_file", sorted((REPO / "conf" / "study").glob("*.yaml")), ids=str)
 def test_every_study_names_what_the_tune_command_reads(study_file: Path) -> None:
     """A study file's typo would surface only minutes into a run (or never, for a factor key
-    the filter ignores): its name, objective, run entries and every top-level key it tries (a
-    filter parameter or a localizer config's key) are checked up front."""
-    import yaml
-
-    from scanloc.localize.mcl.config import known_keys
-
+    the filter ignores): its name, objective, run entries (the pipeline's runs) and every
+    top-level key it tries (a filter parameter or a localizer config's key) are checked up
+    front."""
     study = yaml.safe_load(study_file.read_text())
     assert study["name"] == study_file.stem
     assert study["objective"] in tune.OBJECTIVES
     assert (REPO / "conf" / "localizer" / f"{study['localizer']}.yaml").is_file()
     for run in study["runs"]:
-        assert {"run_dir", "map_name"} <= set(run) <= {
-            "run_dir", "map_name", "map_yaml", "sensor_file", "odometry"
-        }  # fmt: skip
-        assert run.get("odometry", "wheel") in ("wheel", "laser")
+        tune.check_run_entry(run, study_file.name)
         assert str(run["run_dir"]).startswith("data/trajectories/")
     localizer_keys = {
         key

@@ -180,7 +180,8 @@ def coordinate_descent(
     inside the seeds' noise does not decide a factor."""
     if not 0.0 <= min_gain < 1.0:
         raise ValueError(
-            f"conf/tune.yaml: field 'min_gain': expected a fraction in [0, 1), got {min_gain}"
+            f"field 'min_gain' (conf/tune.yaml or the study's): expected a fraction in [0, 1), "
+            f"got {min_gain}"
         )
     base = runs[0].localizer
     chosen: dict[str, Any] = {}
@@ -213,9 +214,26 @@ def coordinate_descent(
     return chosen, trials
 
 
+REQUIRED_RUN_KEYS = ("run_dir", "map_name")
+OPTIONAL_RUN_KEYS = ("map_yaml", "sensor_file", "odometry")
+
+
+def check_run_entry(spec: Mapping[str, Any], where: str) -> None:
+    """A study's run entry names the keys tune_run reads, and only those: a misspelt optional
+    key (a map_yml) would otherwise be ignored and the run localized in the wrong map."""
+    missing = [k for k in REQUIRED_RUN_KEYS if k not in spec]
+    unknown = sorted(set(spec) - set(REQUIRED_RUN_KEYS) - set(OPTIONAL_RUN_KEYS))
+    if missing or unknown:
+        raise ValueError(
+            f"{where}: field 'runs': entry {dict(spec)} "
+            + (f"lacks {missing}" if missing else f"has unknown keys {unknown}")
+            + f"; expected {list(REQUIRED_RUN_KEYS)} and optionally {list(OPTIONAL_RUN_KEYS)}"
+        )
+
+
 def tune_run(spec: Mapping[str, Any], localizer: str, max_steps: int | None) -> TuneRun:
-    """A study's run entry (run_dir, map_name, optional sensor_file and odometry) loaded, with
-    the localizer composed for its map as the localize stage composes it."""
+    """A study's run entry (REQUIRED_RUN_KEYS, OPTIONAL_RUN_KEYS) loaded, with the localizer
+    composed for its map as the localize stage composes it."""
     run_dir = Path(spec["run_dir"])
     traj, ranges = load_trajectory(run_dir)
     odometry = str(spec.get("odometry", "wheel"))
@@ -262,6 +280,8 @@ def main(cfg: DictConfig) -> None:
             f"{sorted(OBJECTIVES)}, got {study['objective']!r}"
         )
     max_steps = None if cfg.max_steps is None else int(cfg.max_steps)
+    for spec in study["runs"]:
+        check_run_entry(spec, f"conf/study/{study['name']}.yaml")
     runs = [tune_run(spec, study["localizer"], max_steps) for spec in study["runs"]]
     first = runs[0].inputs.trajectory
     fitted = fit_odometry_alphas(first.odometry, first.truth, first.kidnap_steps)
