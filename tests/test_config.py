@@ -164,6 +164,7 @@ def dvc_stages(profile: str, trainer: str) -> dict[str, dict[str, Any]]:
         "trainer": trainer,
         "maps": params["maps"],
         "real_logs": params["real_logs"],
+        "real_ablation_logs": params["real_ablation_logs"],
         # No bag ships with the repository: an example entry, so that the bag stages' commands
         # and params are checked like every other stage's.
         "bags": params.get("bags") or EXAMPLE_BAGS,
@@ -637,7 +638,9 @@ def test_dvc_stage_list_is_the_contract():
     assert "intel" in logs  # the real-data evaluation runs by default on the intel log
     assert expansions("real") == logs == expansions("real_valscans") == expansions("real_train")
     variants = ("no_return", "short", "long", "noise", "all")
-    assert expansions("real_ablation") == {f"{log}-{v}" for log in logs for v in variants}
+    ablated = set(params["real_ablation_logs"])
+    assert ablated <= logs, "params.yaml real_ablation_logs: names from real_logs"
+    assert expansions("real_ablation") == {f"{log}-{v}" for log in ablated for v in variants}
     runs = ("real", "sim", "kidnap")
     assert expansions("real_localize") == {f"{log}-{r}" for log in logs for r in runs}
     seed_runs = {f"{log}-{r}-{o}" for log in logs for r in ("real", "kidnap") for o in ODOMETRY}

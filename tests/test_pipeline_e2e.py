@@ -84,6 +84,7 @@ def copy_project(dest: Path, profile: str, extra_maps: dict | None = None) -> Pa
         if log.is_file():
             logs[name] = entry | {"log": str(log)}
     params["real_logs"] = logs
+    params["real_ablation_logs"] = [n for n in params.get("real_ablation_logs") or [] if n in logs]
     (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     subprocess.run(["git", "init", "-q"], cwd=dest, check=True)
     return dest

@@ -53,7 +53,7 @@ def report_md(tmp_path_factory) -> tuple[str, float]:
         scores=scores,
     )
     right = np.arange(len(truth)) % 3 != 0
-    build(root, CONTEXT | {"real_logs": ["intel"]})
+    build(root, CONTEXT | {"real_logs": ["intel", "fr079"]})  # fr079: no ablation files
     text = (root / "reports/report.md").read_text()
     return text, expected_calibration_error(scores[:, 0], right)
 
@@ -72,6 +72,9 @@ def test_the_ablation_rows_come_from_the_ablation_files(report_md) -> None:
     row = f"| intel | {label} | 18.5 % | 26.2 % | – | 34.1 % | – |"
     assert row in text
     assert "| intel | without short readings | – | – | – | – | – |" in text  # not run: dashes
+    # a log outside real_ablation_logs shows its model's row only
+    assert "| fr079 | every measured corruption (the pipeline's model) |" in text
+    assert "| fr079 | without" not in text
 
 
 def test_the_reliability_of_the_verified_score_is_measured(report_md) -> None:

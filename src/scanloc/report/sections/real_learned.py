@@ -90,9 +90,10 @@ def _ablation_table(ctx: ReportContext) -> Table | None:
         full["verified_top1_recall"] = verified.get("top1_recall")
         full["calibration_ece"] = verified.get("calibration_ece")
         variants = [("every measured corruption (the pipeline's model)", full)]
-        for variant, label in ABLATION_ROWS:
-            path = ctx.builder.root / ABLATION_DIR / f"{log}_{variant}.json"
-            variants.append((label, read_json(path) if path.is_file() else {}))
+        paths = [ctx.builder.root / ABLATION_DIR / f"{log}_{v}.json" for v, _ in ABLATION_ROWS]
+        if any(path.is_file() for path in paths):  # a log of params.yaml real_ablation_logs
+            for path, (_, label) in zip(paths, ABLATION_ROWS, strict=True):
+                variants.append((label, read_json(path) if path.is_file() else {}))
         for label, figures in variants:
             cells = [
                 fixed(figures.get(key), 3) if key == "calibration_ece"
@@ -152,7 +153,9 @@ def build(ctx: ReportContext, spec: SectionSpec) -> list:
             Para(
                 "Ablation on the held-out real scans (the evaluation part of each log): the "
                 "learned localizer trained with every measured corruption, and without each "
-                "one (the real_ablation stage: the same training, one corruption off). Top-K: "
+                "one (the real_ablation stage: the same training, one corruption off; on the "
+                "logs of params.yaml `real_ablation_logs`, the others show the pipeline's "
+                "model only). Top-K: "
                 "the truth within 0.5 m and 10° of one of the K best hypotheses; verified "
                 "top-1: the best after verification; calibration error: the expected "
                 "calibration error of its score (10 bins)."
