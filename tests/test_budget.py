@@ -46,6 +46,15 @@ def test_the_training_time_estimate_matches_the_measured_laptop_runs() -> None:
     assert scanlocnet_training_seconds(fewer, 1000) == pytest.approx(step[0] / 2)
 
 
+def test_the_training_time_estimate_counts_the_epochs_a_large_map_adds() -> None:
+    """With the laptop's floor of 560 scans per cell a 1250-cell map trains 28 epochs, not 12
+    (scanloc.scanlocnet.schedule), and the estimate says so; a 200-cell map keeps 12."""
+    floored = PipelineSizes(**{**LAPTOP.__dict__, "min_samples_per_cell": 560})
+    assert scanlocnet_training_seconds(floored, 200) == scanlocnet_training_seconds(LAPTOP, 200)
+    ratio = scanlocnet_training_seconds(floored, 1250) / scanlocnet_training_seconds(LAPTOP, 1250)
+    assert ratio == pytest.approx(28 / 12)
+
+
 def test_free_pose_cells_counts_the_cells_over_free_space(walled_room) -> None:
     room: OccupancyGrid = walled_room(4.0, 3.0, 0.05)  # 80 x 60 map cells, 4 x 3 pose cells
     assert free_pose_cells(room, LAPTOP) == 12

@@ -43,6 +43,7 @@ from omegaconf import DictConfig
 from scanloc.data.scan_dataset import SIM_CHUNK
 from scanloc.localize.catalog import localizer_overrides
 from scanloc.scanlocnet.pose_grid import DECODE_BATCH
+from scanloc.scanlocnet.schedule import training_epochs
 from scanloc.trajectory.planning import PLAN_RESOLUTION
 from scanloc.world.map_checks import MapCheckError
 from scanloc.world.occupancy_grid import OccupancyGrid
@@ -80,7 +81,8 @@ class PipelineSizes:
     training scans per epoch (conf/scanlocnet.yaml training); pose_cell_size, heading_bins,
     features: its pose grid and the width of its cell head (grid, net); beam_lut: (cell size
     in m, heading bins) of amcl's beam-model range table when some localizer uses it, else None;
-    epochs, val_scans: the learned model's epochs and validation scans (its training time).
+    epochs, val_scans, min_samples_per_cell: the learned model's epochs, validation scans and
+    training scans per pose cell (its training time: scanloc.scanlocnet.schedule).
     """
 
     datasets: Mapping[str, int]
@@ -92,6 +94,7 @@ class PipelineSizes:
     beam_lut: tuple[float, int] | None = None
     epochs: int = 0
     val_scans: int = 0
+    min_samples_per_cell: int = 0
 
 
 @dataclass(frozen=True)
@@ -167,7 +170,12 @@ def scanlocnet_training_seconds(sizes: PipelineSizes, cells: int) -> float:
     """Estimated wall seconds of ScanLocNet's training at `sizes` on a pose grid of `cells`
     (module docstring: the fit to the laptop runs on 2 CPU cores)."""
     per_scan = sizes.scans_per_epoch * TRAIN_S_PER_SCAN
-    return sizes.epochs * (per_scan + sizes.val_scans * cells * DECODE_S_PER_SCAN_CELL)
+    epochs = sizes.epochs
+    if epochs and sizes.scans_per_epoch:  # raised on a large map, as the training raises them
+        epochs = training_epochs(
+            epochs, sizes.scans_per_epoch, max(cells, 1), sizes.min_samples_per_cell
+        )
+    return epochs * (per_scan + sizes.val_scans * cells * DECODE_S_PER_SCAN_CELL)
 
 
 def estimate_memory(
@@ -340,6 +348,7 @@ def pipeline_sizes(map_name: str, profile: str) -> PipelineSizes:
         heading_bins=int(net.grid.heading_bins),
         features=int(net.net.features),
         epochs=int(net.training.epochs),
+        min_samples_per_cell=int(net.training.min_samples_per_cell),
         val_scans=int(val.dataset.num_samples),
         beam_lut=(
             (float(beam[0].beam_lut_resolution), int(beam[0].beam_lut_angles)) if beam else None

@@ -25,6 +25,7 @@ from scanloc.scanlocnet.pose_grid import PoseGrid
 from scanloc.scanlocnet.real_scans import load_real_scans
 from scanloc.scanlocnet.resume import TrainingStopped
 from scanloc.scanlocnet.scan_stream import StreamSpec
+from scanloc.scanlocnet.schedule import training_epochs
 from scanloc.scanlocnet.training import RECALL_K, fit_scanlocnet, hypothesis_metrics
 from scanloc.sensor.corruptions import KINDS
 from scanloc.stages._app import stage_main, timed_stage, to_dict
@@ -91,7 +92,12 @@ def train(cfg: DictConfig, out_dir: Path) -> tuple[dict, dict]:
             stream=stream,
             val_dataset=Path(cfg.val_dataset),
             out_dir=out_dir,
-            epochs=int(run.epochs),
+            epochs=training_epochs(
+                int(run.epochs),
+                int(run.scans_per_epoch),
+                grid.num_cells,
+                int(run.min_samples_per_cell),
+            ),
             batch_size=int(run.batch_size),
             lr=float(run.lr),
             weight_decay=float(run.weight_decay),
