@@ -88,6 +88,8 @@ def test_a_misspelt_run_entry_is_refused_with_its_study() -> None:
         tune.check_run_entry({"run_dir": "r", "map_name": "m", "map_yml": "x"}, "study.yaml")
     with pytest.raises(ValueError, match=r"lacks \['map_name'\]"):
         tune.check_run_entry({"run_dir": "r"}, "study.yaml")
+    with pytest.raises(ValueError, match=r"odometry expected one of \('wheel', 'laser'\)"):
+        tune.check_run_entry({"run_dir": "r", "map_name": "m", "odometry": "lidar"}, "study.yaml")
     tune.check_run_entry({"run_dir": "r", "map_name": "m", "odometry": "laser"}, "study.yaml")
 
 

@@ -47,7 +47,7 @@ from scanloc.localize.kinds import LocalizeInputs, run_localizer
 from scanloc.localize.mcl.motion_fit import fit_odometry_alphas
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages._app import conf_dir, stage_main, to_dict
-from scanloc.stages.localize import laser_mount, select_odometry
+from scanloc.stages.localize import ODOMETRY_SOURCES, laser_mount, select_odometry
 from scanloc.trajectory.format import Trajectory, load_trajectory
 
 FITTED_SCALE_KEY = "fitted_alpha_scale"
@@ -219,8 +219,9 @@ OPTIONAL_RUN_KEYS = ("map_yaml", "sensor_file", "odometry")
 
 
 def check_run_entry(spec: Mapping[str, Any], where: str) -> None:
-    """A study's run entry names the keys tune_run reads, and only those: a misspelt optional
-    key (a map_yml) would otherwise be ignored and the run localized in the wrong map."""
+    """A study's run entry names the keys tune_run reads, and only those, with an odometry
+    source the localize stage knows: a misspelt optional key (a map_yml) would otherwise be
+    ignored and the run localized in the wrong map."""
     missing = [k for k in REQUIRED_RUN_KEYS if k not in spec]
     unknown = sorted(set(spec) - set(REQUIRED_RUN_KEYS) - set(OPTIONAL_RUN_KEYS))
     if missing or unknown:
@@ -228,6 +229,11 @@ def check_run_entry(spec: Mapping[str, Any], where: str) -> None:
             f"{where}: field 'runs': entry {dict(spec)} "
             + (f"lacks {missing}" if missing else f"has unknown keys {unknown}")
             + f"; expected {list(REQUIRED_RUN_KEYS)} and optionally {list(OPTIONAL_RUN_KEYS)}"
+        )
+    if spec.get("odometry", "wheel") not in ODOMETRY_SOURCES:
+        raise ValueError(
+            f"{where}: field 'runs': entry {dict(spec)}: odometry expected one of "
+            f"{ODOMETRY_SOURCES}, got {spec['odometry']!r}"
         )
 
 
