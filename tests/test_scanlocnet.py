@@ -239,6 +239,19 @@ def test_on_the_fly_scans_are_deterministic_per_epoch(tmp_path: Path, grid: Occu
     assert ranges.tobytes() == first[2][0].tobytes() and poses.tobytes() == first[2][1].tobytes()
 
 
+def test_a_dead_worker_is_reported_with_its_exit_code(tmp_path: Path, grid: OccupancyGrid) -> None:
+    """Killed (by the OOM killer, say), the worker's death is a clear error naming its exit
+    code and the epoch it was simulating, not a broken pipe from deep inside multiprocessing."""
+    save_map(grid, tmp_path / "map.yaml")
+    spec = StreamSpec(str(tmp_path / "map.yaml"), SENSOR, NOISE, 0.15, 300, 5)
+    with ScanStream(spec) as stream:
+        stream.epoch(0)  # the worker is up (and simulating epoch 1, or done with it)
+        stream._worker.kill()
+        stream._worker.join()
+        with pytest.raises(RuntimeError, match=r"worker stopped \(exit code -9\) while simulat"):
+            stream.epoch(4)
+
+
 # ---------------------------------------------------------------- training
 
 

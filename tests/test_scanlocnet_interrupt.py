@@ -100,6 +100,7 @@ def test_sigterm_ends_the_training_and_the_rerun_resumes_to_the_same_bytes(
     _fit(inputs, room, out_dir, tmp_path / "checkpoints")
     printed = capfd.readouterr().err
     assert "scanlocnet epoch 1/3" not in printed and "scanlocnet epoch 3/3" in printed
+    _assert_same_training(tmp_path / "whole", out_dir)
     assert _folder_bytes(out_dir) == _folder_bytes(tmp_path / "whole")
 
 
@@ -182,5 +183,16 @@ def test_ctrl_c_to_the_stage_process_group_stops_it_and_it_resumes(
     resumed = subprocess.run(command, cwd=REPO, capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr
     assert "scanlocnet epoch 1/3" not in resumed.stderr
-    model = (tmp_path / "b" / "model" / "model.pt").read_bytes()
-    assert model == (tmp_path / "a" / "model" / "model.pt").read_bytes()
+    _assert_same_training(tmp_path / "a" / "model", tmp_path / "b" / "model")
+
+
+def _assert_same_training(whole: Path, resumed: Path) -> None:
+    """The same model bytes; where they differ, the first epoch whose history row differs says
+    whether the resume (epoch 2 on) or the run itself (epoch 1, from the stopped run's
+    checkpoint) went another way."""
+    rows = [(folder / "history.csv").read_text().splitlines() for folder in (whole, resumed)]
+    differ = [epoch for epoch, (a, b) in enumerate(zip(*rows, strict=True)) if a != b]
+    assert differ == [], f"history rows {differ} differ (0: the header):\n" + "\n".join(
+        f"{a}\n{b}" for a, b in zip(*rows, strict=True)
+    )
+    assert (resumed / "model.pt").read_bytes() == (whole / "model.pt").read_bytes()

@@ -26,7 +26,7 @@ import traceback
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from multiprocessing import connection, shared_memory
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -170,19 +170,29 @@ class ScanStream:
             raise
 
     def _request(self, epoch: int) -> None:
-        self._conn.send(epoch)
         self._pending.append(epoch)
+        try:
+            self._conn.send(epoch)
+        except (BrokenPipeError, ConnectionResetError):
+            self._worker_stopped()
+
+    def _worker_stopped(self) -> NoReturn:
+        self._worker.join(WORKER_EXIT_S)  # its exit code
+        raise RuntimeError(
+            f"the scan simulation worker stopped (exit code {self._worker.exitcode}) "
+            f"while simulating epoch {self._pending[0]} of {self.spec.map_yaml}"
+        )
 
     def _receive(self) -> int:
-        """Wait for the worker's next answer (or its death) and return the epoch it finished."""
+        """Wait for the worker's next answer (or its death) and return the epoch it finished;
+        an answer sent before it died is still read."""
         ready = connection.wait([self._conn, self._worker.sentinel])
         if self._conn not in ready:
-            self._worker.join(WORKER_EXIT_S)  # its exit code
-            raise RuntimeError(
-                f"the scan simulation worker stopped (exit code {self._worker.exitcode}) "
-                f"while simulating epoch {self._pending[0]} of {self.spec.map_yaml}"
-            )
-        epoch, error = self._conn.recv()
+            self._worker_stopped()
+        try:
+            epoch, error = self._conn.recv()
+        except (EOFError, ConnectionResetError):
+            self._worker_stopped()
         if error is not None:
             what = "starting" if epoch is None else f"simulating epoch {epoch}"
             raise RuntimeError(f"the scan simulation worker failed {what}:\n{error}")
