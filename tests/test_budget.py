@@ -35,10 +35,18 @@ LAPTOP = PipelineSizes(
 
 
 def test_the_training_time_estimate_matches_the_measured_laptop_runs() -> None:
-    """The two runs the fit rests on (budget.py's docstring): 15 s per epoch on sparse_obstacles
-    (~200 cells) and 492 s in all (41 s per epoch) on the 50 x 25 m rooms map (1250 cells)."""
-    assert scanlocnet_training_seconds(LAPTOP, 200) / 12 == pytest.approx(15.0, rel=0.05)
-    assert scanlocnet_training_seconds(LAPTOP, 1250) == pytest.approx(492.0, rel=0.05)
+    """The three runs the fit rests on (budget.py's docstring; bf16-mixed, validation included,
+    the laptop's floor of 560 scans per cell): 5.80 s per epoch on sparse_obstacles (222 cells,
+    12 epochs), 175 s in all on the 50 x 25 m rooms map (1250 cells, 28 epochs), 988 s on the
+    100 x 50 m one (5000 cells, 112 epochs); float32 costs 7.02 s per epoch where bf16 costs
+    5.30."""
+    floored = PipelineSizes(**{**LAPTOP.__dict__, "min_samples_per_cell": 560})
+    assert scanlocnet_training_seconds(floored, 222) / 12 == pytest.approx(5.80, rel=0.05)
+    assert scanlocnet_training_seconds(floored, 1250) == pytest.approx(175.0, rel=0.05)
+    assert scanlocnet_training_seconds(floored, 5000) == pytest.approx(988.0, rel=0.05)
+    float32 = scanlocnet_training_seconds(LAPTOP, 222, bf16=False)
+    bf16 = scanlocnet_training_seconds(LAPTOP, 222)
+    assert float32 / bf16 == pytest.approx(7.02 / 5.30, rel=0.05)
     # linear in the cells: each cell adds the same time, and more epochs cost proportionally
     step = [scanlocnet_training_seconds(LAPTOP, c) for c in (1000, 2000, 3000)]
     assert step[2] - step[1] == pytest.approx(step[1] - step[0])

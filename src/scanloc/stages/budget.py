@@ -15,16 +15,18 @@ Measured (2 CPU cores, float32, the laptop network, batch 256, 667 beams; a trai
 1.32, 1.35 and 1.43 s, +0.03 ms per cell (the 512 x cells cell head is a small part of it),
 and the peak RSS grew from 601 to 609 and 637 MB: ~10 KB per cell, inside the memory estimate
 below (the cell head with Adam, 8 KB per cell, and the decoded logits of DECODE_BATCH scans,
-74 KB per cell with 36 bins). The epoch time grows with the validation's decoding over the
-grid: the laptop runs took 15 s per epoch on sparse_obstacles (~200 cells) and 41 s on the
-50 x 25 m rooms map (1250 cells), with 25000 training and 2000 validation scans per epoch,
-which fit
+74 KB per cell with 36 bins). The epoch time (its validation included) of the laptop runs,
+25000 training and 2000 validation scans per epoch, bf16-mixed on a quiet 2-core Xeon with
+AMX (2026-12-03, docs/benchmarks.md): 5.80 s on sparse_obstacles (222 cells, 12 epochs),
+6.25 s on a 50 x 25 m rooms map (1250 cells, 28 epochs), 8.82 s on a 100 x 50 m one (5000
+cells, 112 epochs: 16.5 min in all), which fit
 
     epoch_s = scans_per_epoch x TRAIN_S_PER_SCAN + val_scans x cells x DECODE_S_PER_SCAN_CELL
 
-(0.4 ms and 12.4 us): linear in the cells, +0.025 s per cell and epoch at the laptop profile,
-so a 5000 m² floor (~4000 cells of 1 m) needs ~110 s per epoch, 22 min for 12 epochs. The
-maps stage prints this estimate; a memory estimate over the budget fails it.
+(0.226 ms and 0.32 us; in float32 the training scan costs FLOAT32_TRAIN_FACTOR as much:
+7.02 against 5.30 s per epoch on sparse_obstacles). The maps stage prints this estimate for both
+(`precision: auto` trains in bf16 only where the CPU has bf16 instructions); a memory estimate
+over the budget fails it.
 """
 
 from __future__ import annotations
@@ -66,8 +68,9 @@ CAST_BYTES_PER_READING = 12  # a cast range (float64) and its float32 reading
 # into one of two shared buffers, the trainer's copy out (float32 each).
 STREAM_BYTES_PER_READING = 44
 # ScanLocNet's training time per epoch (module docstring: fitted to the laptop runs, 2 cores).
-TRAIN_S_PER_SCAN = 4.0e-4  # a training scan: trunk, both heads, AdamW (batch 256)
-DECODE_S_PER_SCAN_CELL = 1.24e-5  # a validation scan's decoding, per cell of the pose grid
+TRAIN_S_PER_SCAN = 2.26e-4  # a training scan in bf16-mixed: trunk, both heads, AdamW (batch 256)
+FLOAT32_TRAIN_FACTOR = 1.32  # the same scan in float32 (32-true)
+DECODE_S_PER_SCAN_CELL = 3.2e-7  # a validation scan's decoding, per cell (mean over training)
 PROCESS_BYTES = 600 * 10**6  # Python, numpy, scipy, numba and torch in one stage process
 ADAM_COPIES = 4  # a trained parameter: value, gradient, two Adam moments (float32 each)
 
@@ -166,10 +169,12 @@ def free_pose_cells(grid: OccupancyGrid, sizes: PipelineSizes) -> int:
     return len(np.unique((rows // step) * (grid.width // step + 1) + cols // step))
 
 
-def scanlocnet_training_seconds(sizes: PipelineSizes, cells: int) -> float:
-    """Estimated wall seconds of ScanLocNet's training at `sizes` on a pose grid of `cells`
-    (module docstring: the fit to the laptop runs on 2 CPU cores)."""
-    per_scan = sizes.scans_per_epoch * TRAIN_S_PER_SCAN
+def scanlocnet_training_seconds(sizes: PipelineSizes, cells: int, bf16: bool = True) -> float:
+    """Estimated wall seconds of ScanLocNet's training at `sizes` on a pose grid of `cells`,
+    in bf16-mixed or (bf16 False) float32 (module docstring: the fit to the laptop runs on 2
+    CPU cores)."""
+    factor = 1.0 if bf16 else FLOAT32_TRAIN_FACTOR
+    per_scan = sizes.scans_per_epoch * TRAIN_S_PER_SCAN * factor
     epochs = sizes.epochs
     if epochs and sizes.scans_per_epoch:  # raised on a large map, as the training raises them
         epochs = training_epochs(

@@ -64,13 +64,15 @@ def main(cfg: DictConfig) -> None:
             if provenance is not None:  # only maps the stage changed: the others keep their bytes
                 write_json(tmp / "meta.json", provenance)
     shares = cell_shares(grid)
-    memory = (
-        f"; estimated peak {format_bytes(estimate.need)} ({estimate.peak_stage}, profile "
-        f"{checks.profile}) of {format_bytes(physical_memory())}; ScanLocNet's training "
-        f"~{duration(scanlocnet_training_seconds(sizes, free_pose_cells(grid, sizes)))}"
-        if estimate is not None
-        else ""
-    )
+    memory = ""
+    if estimate is not None:
+        cells = free_pose_cells(grid, sizes)
+        memory = (
+            f"; estimated peak {format_bytes(estimate.need)} ({estimate.peak_stage}, profile "
+            f"{checks.profile}) of {format_bytes(physical_memory())}; ScanLocNet's training "
+            f"~{duration(scanlocnet_training_seconds(sizes, cells))} in bf16, "
+            f"~{duration(scanlocnet_training_seconds(sizes, cells, bf16=False))} in float32"
+        )
     print(
         f"maps: {label}: {grid.width} x {grid.height} cells at {grid.resolution:g} m, free "
         f"{shares['free']:.1%}, occupied {shares['occupied']:.1%}, unknown "
