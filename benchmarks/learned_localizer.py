@@ -13,8 +13,17 @@ Then both localize 2000 fresh validation scans and the pipeline's drive trajecto
 CNN has only one), the share of gross failures (> 1 m) and the top-5 recall (truth within
 0.5 m and 10° of one of the 5 best hypotheses; for the 1D CNN, of its one estimate).
 
-Run: python benchmarks/learned_localizer.py [--budget 240] [--map sparse_obstacles] [--quick]
-Last line: JSON, per model median_pos_err_m, gross_frac, top5_recall, budget_s, samples.
+Then ScanLocNet's cost with the building and per scan (benchmarks/learned_scaling.py, whose
+parts this runs): its training at 3 map sizes (25 x 12.5, 50 x 25 and 100 x 50 m generated
+rooms maps: a training step, a scan's decoding, peak memory, the whole training composed from
+them and the maps stage's estimate of it, each with its fitted growth in the pose cells), and
+on the map-1 drive the network's hypotheses against their verification, ms per scan.
+
+Run: python benchmarks/learned_localizer.py [--budget 240] [--map sparse_obstacles]
+     [--parts compare scaling inference] [--quick]
+Last line: JSON: per model (`scanlocnet`, `cnn1d`) median_pos_err_m, gross_frac, top5_recall,
+budget_s, samples; `scaling` (per map size and the fits); `inference` (hypotheses_ms,
+verification_ms, total_ms).
 """
 
 from __future__ import annotations
@@ -32,6 +41,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from amcl_every_scan import pipeline_run
+from learned_scaling import inference_cost, scaling_cost
 from scanloc.models.model_files import build_model, predict
 from scanloc.pose import recall_within
 from scanloc.scanlocnet.model import suppress_duplicates, top_k
@@ -43,6 +53,7 @@ from scanloc.sensor.simulate import ScanSimulator, laser_spec_from_config
 from scanloc.world.map_server import save_map
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
+PARTS = ("compare", "scaling", "inference")
 
 
 def configs() -> tuple[dict, dict]:
@@ -90,13 +101,8 @@ def figures(hyp_poses: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--budget", type=float, default=240.0, help="training seconds per model")
-    parser.add_argument("--map", default="sparse_obstacles")
-    parser.add_argument("--profile", default="laptop", help="the trajectory's profile")
-    parser.add_argument("--quick", action="store_true", help="a fast smoke run")
-    args = parser.parse_args()
+def compare(args: argparse.Namespace) -> dict[str, dict]:
+    """ScanLocNet against the paper's 1D CNN at the same budget (module docstring)."""
     budget = 8.0 if args.quick else args.budget
     profile = "smoke" if args.quick else args.profile
     learned_cfg, paper_cfg = configs()
@@ -201,11 +207,28 @@ def main() -> None:
             f"{r['median_pos_err_m']:.3f} m, > 1 m {100 * r['gross_frac']:.1f} %, top-5 recall "
             f"{100 * r['top5_recall']:.1f} %; validation {r['val']}"
         )
-    print(
-        json.dumps(
-            {"map": args.map, "threads": torch.get_num_threads(), "quick": args.quick, **results}
-        )
+    return results
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--budget", type=float, default=240.0, help="training seconds per model")
+    parser.add_argument("--map", default="sparse_obstacles")
+    parser.add_argument("--profile", default="laptop", help="the trajectory's profile")
+    parser.add_argument("--steps", type=int, default=5, help="timed training steps per size")
+    parser.add_argument(
+        "--parts", nargs="+", choices=PARTS, default=list(PARTS), help="which parts to run"
     )
+    parser.add_argument("--quick", action="store_true", help="a fast smoke run")
+    args = parser.parse_args()
+    figures: dict = {"map": args.map, "threads": torch.get_num_threads(), "quick": args.quick}
+    if "compare" in args.parts:
+        figures |= compare(args)
+    if "scaling" in args.parts:
+        figures["scaling"] = scaling_cost(1 if args.quick else args.steps, args.quick)
+    if "inference" in args.parts:
+        figures["inference"] = inference_cost(args.quick)
+    print(json.dumps(figures))
 
 
 if __name__ == "__main__":

@@ -4,9 +4,14 @@ Part 1, training cost at 3 map sizes: generated rooms maps (conf/map/generated_r
 generator) of 25 x 12.5, 50 x 25 and 100 x 50 m; for each, the laptop network with its pose
 grid, `--steps` training steps of batch 256 on freshly simulated scans (median step time),
 the decoding of 64 scans over the whole grid (ms per scan: what validation and localization
-pay) and the process's peak RSS after both. The figures are fitted by least squares, linear
-in the number of cells (a + b·cells) and as a power law (cells^k); the smallest map is the
-reference the others are compared with (`step_ratio`).
+pay) and the process's peak RSS after both. From these, the whole laptop training on each map:
+its epochs (raised on a large map: scanloc.scanlocnet.schedule) times the measured steps of an
+epoch (`train_steps_s`), plus the validation's decoding at the measured worst case
+(`validation_worst_s`: an untrained network; a trained one decodes faster), next to the maps
+stage's estimate (stages/budget.py, float32, fitted to whole trainings: `budget_estimate_s`).
+The figures are fitted by least squares, linear in the number of cells (a + b·cells) and as a
+power law (cells^k); the smallest map is the reference the others are compared with
+(`step_ratio`).
 
 Part 2, one scan's cost in the learned localizer on map 1 (sparse_obstacles, drive at the
 laptop profile): the network's hypotheses (top_k + non-maximum suppression) alone, the
@@ -38,9 +43,11 @@ from scanloc.models.model_files import build_model, save_model
 from scanloc.scanlocnet.model import top_k
 from scanloc.scanlocnet.pose_grid import PoseGrid
 from scanloc.scanlocnet.scan_stream import StreamSpec, simulate_epoch
+from scanloc.scanlocnet.schedule import training_epochs
 from scanloc.scanlocnet.training import encode_targets, scanlocnet_loss
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import ScanSimulator, laser_spec_from_config
+from scanloc.stages.budget import PipelineSizes, scanlocnet_training_seconds
 from scanloc.world.build import build_map
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
@@ -49,8 +56,12 @@ PIPELINE_MODEL = CONF.parent / "models/scanlocnet/sparse_obstacles/model.pt"
 
 
 def learned_config() -> dict:
+    """conf/scanlocnet.yaml at the laptop profile, with its validation scans per epoch
+    (`val_scans`: the map's validation dataset, conf/dataset/map_validation.yaml)."""
     with initialize_config_dir(config_dir=str(CONF), version_base=None):
-        return OmegaConf.to_container(compose("scanlocnet"), resolve=True)
+        cfg = OmegaConf.to_container(compose("scanlocnet"), resolve=True)
+        val = compose("scans", overrides=["dataset=map_validation"]).dataset
+    return cfg | {"val_scans": int(val.num_samples)}
 
 
 def rooms_map(width: float, height: float):
@@ -97,6 +108,29 @@ def training_cost(cfg: dict, width: float, height: float, steps: int) -> dict:
         "step_s": float(np.median(times[1:])),
         "decode_ms_per_scan": decode_ms,
         "peak_rss_mb": peak_rss_mb(),
+    }
+
+
+def whole_training(cfg: dict, row: dict) -> dict:
+    """The whole training on one map size (module docstring), in seconds."""
+    train = cfg["training"]
+    epochs = training_epochs(
+        train["epochs"], train["scans_per_epoch"], row["cells"], train["min_samples_per_cell"]
+    )
+    steps = train["scans_per_epoch"] // train["batch_size"]
+    sizes = PipelineSizes(
+        datasets={},
+        num_beams=cfg["sensor"]["num_beams"],
+        scans_per_epoch=train["scans_per_epoch"],
+        epochs=train["epochs"],
+        val_scans=cfg["val_scans"],
+        min_samples_per_cell=train["min_samples_per_cell"],
+    )
+    return {
+        "epochs": epochs,
+        "train_steps_s": epochs * steps * row["step_s"],
+        "validation_worst_s": epochs * cfg["val_scans"] * row["decode_ms_per_scan"] / 1000,
+        "budget_estimate_s": scanlocnet_training_seconds(sizes, row["cells"], bf16=False),
     }
 
 
@@ -148,25 +182,33 @@ def inference_cost(quick: bool) -> dict:
     }
 
 
+def scaling_cost(steps: int, quick: bool) -> dict:
+    """Part 1 (module docstring) at the 3 sizes (2 when `quick`), with the fitted growth."""
+    cfg = learned_config()
+    rows = []
+    for width, height in SIZES[:2] if quick else SIZES:
+        row = training_cost(cfg, width, height, steps)
+        rows.append(row | whole_training(cfg, row))
+        print(json.dumps(rows[-1]))
+    for row in rows:
+        row["step_ratio"] = row["step_s"] / rows[0]["step_s"]
+    return {
+        "maps": rows,
+        "step_s_growth": fit_growth(rows, "step_s"),
+        "decode_ms_growth": fit_growth(rows, "decode_ms_per_scan"),
+        "train_steps_s_growth": fit_growth(rows, "train_steps_s"),
+        "budget_estimate_s_growth": fit_growth(rows, "budget_estimate_s"),
+        "peak_rss_mb_growth": fit_growth(rows, "peak_rss_mb"),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=5, help="timed training steps per size")
     parser.add_argument("--quick", action="store_true", help="a fast smoke run")
     args = parser.parse_args()
     torch.set_num_threads(2)
-    cfg = learned_config()
-    sizes = SIZES[:2] if args.quick else SIZES
-    rows = []
-    for width, height in sizes:
-        rows.append(training_cost(cfg, width, height, 1 if args.quick else args.steps))
-        print(json.dumps(rows[-1]))
-    for row in rows:
-        row["step_ratio"] = row["step_s"] / rows[0]["step_s"]
-    scaling = {
-        "maps": rows,
-        "step_s_growth": fit_growth(rows, "step_s"),
-        "decode_ms_growth": fit_growth(rows, "decode_ms_per_scan"),
-    }
+    scaling = scaling_cost(1 if args.quick else args.steps, args.quick)
     inference = inference_cost(args.quick)
     print(json.dumps({"scaling": scaling, "inference": inference}))
 

@@ -21,6 +21,8 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from scanloc.localize.catalog import localizer_overrides
+from scanloc.scanlocnet.schedule import training_epochs
+from scanloc.stages.train_scanlocnet import samples_per_cell_floor
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = REPO_ROOT / "conf"
@@ -411,6 +413,25 @@ def test_smoke_and_laptop_are_scaled_down():
     for what, full in paper.items():
         assert 0 < laptop[what] < full, f"laptop {what} = {laptop[what]}, paper {full}"
         assert 0 < smoke[what] <= laptop[what], f"smoke {what} = {smoke[what]} > laptop"
+
+
+def test_a_real_log_trains_denser_than_a_simulated_map():
+    """The laptop's real-log floor of scans per cell (chosen on intel's tune hold-out) reaches
+    the log trainings of dvc.yaml, real_train's model and its ablation variants alike (a fair
+    ablation trains as the model it is compared with) and a bag's, and only those."""
+    floors: dict[str, set[int]] = {}
+    for name, stage in dvc_stages("laptop", "cpu").items():
+        config_name, overrides = stage_command(stage)
+        if config_name in ("scanlocnet", "real_ablation"):
+            cfg = OmegaConf.create(resolved(config_name, overrides))
+            floors.setdefault(name.split("@")[0], set()).add(samples_per_cell_floor(cfg))
+    assert floors.keys() == {"train_scanlocnet", "real_train", "real_ablation", "bag_train"}
+    assert floors["real_train"] == floors["real_ablation"] == floors["bag_train"]
+    assert len(floors["real_train"]) == 1
+    (real,), (simulated,) = floors["real_train"], floors["train_scanlocnet"]
+    assert real > simulated
+    # intel's 529 pose cells at 12 x 25000 scans: the 36 epochs the tune hold-out chose
+    assert training_epochs(12, 25_000, 529, real) == 36
 
 
 @pytest.mark.parametrize("profile", PROFILES)

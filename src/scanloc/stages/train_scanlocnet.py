@@ -60,6 +60,15 @@ def tune_holdout_metrics(dataset: Path, model_path: Path) -> dict[str, float]:
     return figures | {"tune_heldout_scans": len(rows)}
 
 
+def samples_per_cell_floor(cfg: DictConfig) -> int:
+    """The fewest training scans per pose cell (scanloc.scanlocnet.schedule): a real log's map
+    trains denser, its scans being harder to place than a simulated map's (`real_log`)."""
+    run = cfg.training
+    return int(
+        run.real_log_min_samples_per_cell if cfg.get("real_log") else run.min_samples_per_cell
+    )
+
+
 def train(cfg: DictConfig, out_dir: Path) -> tuple[dict, dict]:
     """Train the configured ScanLocNet into `out_dir`: (deterministic metrics, machine
     figures). A stop signal exits the process (module docstring)."""
@@ -96,7 +105,7 @@ def train(cfg: DictConfig, out_dir: Path) -> tuple[dict, dict]:
                 int(run.epochs),
                 int(run.scans_per_epoch),
                 grid.num_cells,
-                int(run.min_samples_per_cell),
+                samples_per_cell_floor(cfg),
             ),
             batch_size=int(run.batch_size),
             lr=float(run.lr),
