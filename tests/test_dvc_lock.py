@@ -42,10 +42,15 @@ def _dvc_status() -> dict:
 
 
 def changed_source_dependencies(status: dict) -> list[str]:
-    """`stage: path (change)` for each source/config dependency or param `dvc status` reports."""
+    """`stage: path (change)` for each source/config dependency or param `dvc status` reports,
+    and `stage: changed command` where the stage's command is not the locked one."""
     found = []
     for stage, changes in status.items():
         for change in changes if isinstance(changes, list) else []:
+            if isinstance(change, str):  # "changed command", "always changed"
+                if change != "always changed":
+                    found.append(f"{stage}: {change}")
+                continue
             for path, what in change.get("changed deps", {}).items():
                 if path.startswith(SOURCE_PREFIXES):
                     found.append(f"{stage}: {path} ({what})")
@@ -61,10 +66,13 @@ def test_changed_source_dependencies_reads_dvc_status() -> None:
             {"changed outs": {"data/maps/a": "not in cache"}},
         ],
         "report": [{"changed params": {"conf/report.yaml": {"claims.claim1.min_margin": 1}}}],
+        "real_train@intel": ["changed command"],
+        "bench": ["always changed"],
     }
     assert changed_source_dependencies(status) == [
         "maps@a: src/scanloc/world (modified)",
         "report: params conf/report.yaml ({'claims.claim1.min_margin': 1})",
+        "real_train@intel: changed command",
     ]
 
 
