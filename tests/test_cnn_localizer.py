@@ -88,7 +88,7 @@ LOAD_S, PREDICT_S = 100.0, 0.5  # what loading and predicting take on the fake c
 
 
 def _fake_training(monkeypatch: pytest.MonkeyPatch) -> list[int]:
-    """A stand-in for scanloc.models.training: model k predicts (mean range + k, k, π − 0.1·k).
+    """A stand-in for scanloc.models.model_files: model k predicts (mean range + k, k, π − 0.1·k).
 
     The localizer's clock is faked too: loading a model takes LOAD_S, a predict call PREDICT_S."""
     batch_sizes: list[int] = []
@@ -107,9 +107,9 @@ def _fake_training(monkeypatch: pytest.MonkeyPatch) -> list[int]:
         theta = np.full(n, np.pi - 0.1 * k if k % 2 == 0 else -np.pi + 0.1 * k)
         return np.stack([ranges.mean(axis=1) + k, np.full(n, k), theta], axis=1)
 
-    module = types.ModuleType("scanloc.models.training")
+    module = types.ModuleType("scanloc.models.model_files")
     module.load_model, module.predict = load_model, predict
-    monkeypatch.setitem(sys.modules, "scanloc.models.training", module)
+    monkeypatch.setitem(sys.modules, "scanloc.models.model_files", module)
     return batch_sizes
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -198,3 +199,38 @@ def test_a_verified_config_without_calibration_scans_names_the_field() -> None:
     cfg = {"name": "mine", "model": "missing.pt", "verify": {"iterations": 3}}
     with pytest.raises(ValueError, match=r"mine\.yaml: field 'calibration_scans': expected"):
         learned_hypotheses(cfg, inputs)
+
+
+def test_localizers_of_one_stage_share_a_calibration_fitted_once(monkeypatch) -> None:
+    import scanloc.localize.kinds as kinds
+
+    class Dataset:  # five validation scans with poses
+        val_idx = np.arange(5)
+        ranges = np.ones((5, SPEC.num_beams))
+        poses = np.zeros((5, 3))
+
+    fits: list[int] = []
+
+    def fit(hypotheses_of, verifier, ranges, poses):
+        fits.append(len(ranges))
+        return ScoreCalibration.fit(np.zeros((2, 4)), np.array([0.0, 1.0])), {}
+
+    monkeypatch.setattr(kinds, "scan_hypotheses", lambda *a, **k: (None, lambda s: None, 0.0))
+    monkeypatch.setattr(kinds, "load_scan_dataset", lambda path: Dataset())
+    monkeypatch.setattr(kinds, "fit_calibration", fit)
+    monkeypatch.setattr(kinds, "HypothesisVerifier", lambda *a: SimpleNamespace(calibration=None))
+    traj = Trajectory(np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
+    inputs = LocalizeInputs(traj, np.zeros((1, SPEC.num_beams)), Path("unused.yaml"), SPEC)
+    inputs.__dict__["grid"] = None  # no map needed by the stand-in verifier
+    cfg = {"model": "m.pt", "calibration_scans": "val", "calibration_count": 5, "k": 20}
+    cfg["verify"] = {"iterations": 3}
+    for name in ("scanlocnet_verified", "hybrid_verified"):
+        learned_hypotheses({**cfg, "name": name}, inputs)
+    assert fits == [5]
+    learned_hypotheses({**cfg, "name": "fewer", "calibration_count": 3}, inputs)
+    learned_hypotheses({**cfg, "name": "other_k", "k": 10}, inputs)
+    assert fits == [5, 3, 5]
+    other_stage = LocalizeInputs(traj, np.zeros((1, SPEC.num_beams)), Path("unused.yaml"), SPEC)
+    other_stage.__dict__["grid"] = None
+    learned_hypotheses({**cfg, "name": "scanlocnet_verified"}, other_stage)
+    assert fits == [5, 3, 5, 5]

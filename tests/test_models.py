@@ -201,3 +201,48 @@ def test_mlp_hidden_dropout_defaults_to_dropout() -> None:
         m.p for m in Mlp(hidden=128, hidden_dropout=0.5).modules() if isinstance(m, nn.Dropout)
     ]
     assert rates == [0.25, 0.25, 0.25, 0.5]
+
+
+def test_a_flat_model_config_builds_what_hydra_instantiate_builds() -> None:
+    from hydra.utils import instantiate
+
+    from scanloc.models.model_files import build_model
+
+    grid = {"origin": [0.0, 0.0], "cell_size": 1.0, "shape": [3, 4], "cells": [[0, 1], [2, 3]]}
+    grid["heading_bins"] = 8
+    configs = [
+        {"_target_": "scanloc.models.cnn1d.Cnn1d", "num_beams": 64, "pool_size": 8},
+        {"_target_": "scanloc.models.mlp.Mlp", "num_beams": 64, "hidden": 32},
+        {
+            "_target_": "scanloc.scanlocnet.model.ScanLocNet",
+            "num_beams": 64,
+            "range_max": 5.6,
+            "grid": grid,
+            "channels": [8, 8],
+            "kernels": [5, 3],
+            "features": 32,
+            "hidden": 16,
+        },
+    ]
+    for cfg in configs:
+        torch.manual_seed(0)
+        expected = instantiate(cfg, _convert_="all")
+        torch.manual_seed(0)
+        built = build_model(cfg)
+        assert type(built) is type(expected)
+        assert built.state_dict().keys() == expected.state_dict().keys()
+        assert all(
+            torch.equal(a, b)
+            for a, b in zip(
+                built.state_dict().values(), expected.state_dict().values(), strict=True
+            )
+        )
+
+
+def test_a_model_config_with_hydra_keys_still_goes_through_instantiate() -> None:
+    from scanloc.models.model_files import _needs_instantiate
+
+    assert not _needs_instantiate({"_target_": "a.B", "grid": {"cells": [[0, 1]]}})
+    assert _needs_instantiate({"_target_": "a.B", "_partial_": True})
+    assert _needs_instantiate({"_target_": "a.B", "act": {"_target_": "torch.nn.ReLU"}})
+    assert _needs_instantiate({"_target_": "a.B", "layers": [{"_target_": "torch.nn.ReLU"}]})

@@ -60,7 +60,7 @@ def localize_cnn(
     members on that scan alone. Loading the models and a first (warm-up) inference are setup.
     """
     # Imported here so that the table maths can be used without loading torch.
-    from scanloc.models.training import load_model, predict
+    from scanloc.models.model_files import load_model, predict
 
     paths = [Path(p) for p in model_paths]
     if not paths:

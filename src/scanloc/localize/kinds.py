@@ -8,6 +8,8 @@ the hybrid plugs its learned proposal and importance weights into it."""
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -95,6 +97,9 @@ class LocalizeInputs:
     map_yaml: Path
     laser: LaserSpec
     laser_mount: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # What localizers of one stage share instead of recomputing: the verifier's calibration
+    # per (model, calibration scans, verifier and decoding settings).
+    shared: dict[str, Any] = dataclasses.field(default_factory=dict, compare=False, repr=False)
 
     @cached_property
     def grid(self) -> OccupancyGrid:
@@ -225,14 +230,28 @@ def learned_hypotheses(
     verifier = HypothesisVerifier(
         inputs.grid, inputs.laser, VerifierParams.from_config(dict(cfg["verify"]))
     )
-    data = load_scan_dataset(cfg["calibration_scans"])
-    val = data.val_idx
-    pick = val[np.unique(np.linspace(0, len(val) - 1, int(cfg["calibration_count"])).astype(int))]
-    verifier.calibration, _ = fit_calibration(
-        hypotheses_of, verifier, np.asarray(data.ranges[pick]), data.poses[pick]
-    )
+    verifier.calibration = _calibration(cfg, inputs, hypotheses_of, verifier)
     checked = verified(hypotheses_of, verifier)
     return in_base_frame(checked, inputs.laser_mount), time.perf_counter() - start
+
+
+def _calibration(
+    cfg: Mapping[str, Any], inputs: LocalizeInputs, hypotheses_of, verifier: HypothesisVerifier
+):
+    """The verifier's calibration for `cfg`, fitted once per stage: localizers with the same
+    model, calibration scans and settings (scanlocnet_verified, hybrid_verified) share it."""
+    settings = [cfg["model"], cfg["calibration_scans"], cfg["calibration_count"], cfg["verify"]]
+    settings.append(learned_options(cfg))
+    key = "calibration:" + json.dumps(settings, sort_keys=True, default=str)
+    if key not in inputs.shared:
+        data = load_scan_dataset(cfg["calibration_scans"])
+        val = data.val_idx
+        count = int(cfg["calibration_count"])
+        pick = val[np.unique(np.linspace(0, len(val) - 1, count).astype(int))]
+        inputs.shared[key], _ = fit_calibration(
+            hypotheses_of, verifier, np.asarray(data.ranges[pick]), data.poses[pick]
+        )
+    return inputs.shared[key]
 
 
 @register_kind("learned")

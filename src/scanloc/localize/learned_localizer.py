@@ -43,7 +43,7 @@ def scan_hypotheses(
 ):
     """(model, per-scan hypotheses function, setup seconds): the function maps one scan
     (beams,) to Hypotheses of one row (torch is imported here, not at module load)."""
-    from scanloc.models.training import load_model
+    from scanloc.models.model_files import load_model
     from scanloc.scanlocnet.model import suppress_duplicates, top_k
 
     start = time.perf_counter()

@@ -25,9 +25,28 @@ PathLike = str | os.PathLike[str]
 
 
 def build_model(model_cfg: Mapping[str, Any]) -> nn.Module:
-    """Instantiate a network from a config dict with `_target_` (hydra.utils.instantiate)."""
-    _target_of(model_cfg)
-    return instantiate(plain_config(model_cfg), _convert_="all")
+    """Instantiate a network from a config dict with `_target_`. A flat config (no nested
+    `_target_`, no other `_..._` keys) calls the class directly: hydra.utils.instantiate
+    would give it the same arguments, but first turns the config into OmegaConf nodes, which
+    takes a second for a ScanLocNet whose pose grid lists thousands of cells."""
+    target = _target_of(model_cfg)
+    cfg = plain_config(model_cfg)
+    if _needs_instantiate(cfg):
+        return instantiate(cfg, _convert_="all")
+    return get_class(target)(**{key: value for key, value in cfg.items() if key != "_target_"})
+
+
+def _needs_instantiate(cfg: Any, top: bool = True) -> bool:
+    """Whether a config holds what only hydra's instantiate handles: nested `_target_`s or
+    special keys (`_partial_`, `_args_`, ...)."""
+    if isinstance(cfg, dict):
+        special = [key for key in cfg if str(key).startswith("_")]
+        if special != (["_target_"] if top else []):
+            return True
+        return any(_needs_instantiate(value, top=False) for value in cfg.values())
+    if isinstance(cfg, list):
+        return any(_needs_instantiate(value, top=False) for value in cfg)
+    return False
 
 
 def plain_config(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
