@@ -222,10 +222,12 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="a fast smoke run")
     args = parser.parse_args()
     figures: dict = {"map": args.map, "threads": torch.get_num_threads(), "quick": args.quick}
-    if "compare" in args.parts:
-        figures |= compare(args)
+    # Scaling first: its peak RSS is the process's high-water mark, which the comparison's
+    # training would otherwise have set for every size.
     if "scaling" in args.parts:
         figures["scaling"] = scaling_cost(1 if args.quick else args.steps, args.quick)
+    if "compare" in args.parts:
+        figures |= compare(args)
     if "inference" in args.parts:
         figures["inference"] = inference_cost(args.quick)
     print(json.dumps(figures))
