@@ -73,7 +73,8 @@ def test_the_ablation_rows_come_from_the_ablation_files(report_md) -> None:
     assert row in text
     assert "| intel | without short readings | – | – | – | – | – |" in text  # not run: dashes
     # a log outside real_ablation_logs shows its model's row only
-    assert "| fr079 | every measured corruption (the pipeline's model) |" in text
+    assert "| intel | ablation baseline: every measured corruption | – |" in text
+    assert "| fr079 | the pipeline's model (every measured corruption, denser training) |" in text
     assert "| fr079 | without" not in text
 
 

@@ -1,8 +1,8 @@
 """`real_ablation` stage (beyond the paper): the learned localizer trained without one of a real
-log's measured laser corruptions (or without all of them), scored on the log's held-out real
-scans (conf/real_ablation.yaml). With the full model's figures (real_train, scored by the
-evaluate stage) the report's ablation table shows what each corruption, and the verification,
-changes in top-K recall on real scans."""
+log's measured laser corruptions (or without all of them, or with all of them: the matched
+baseline `none`), scored on the log's held-out real scans (conf/real_ablation.yaml). The
+report's ablation table shows what each corruption, and the verification, changes in top-K
+recall on real scans, every variant trained alike."""
 
 from __future__ import annotations
 
@@ -22,13 +22,15 @@ from scanloc.stages.localize import laser_mount
 from scanloc.stages.train_scanlocnet import train
 from scanloc.trajectory.format import load_trajectory
 
-VARIANTS = (*KINDS, "noise", "all")
+VARIANTS = ("none", *KINDS, "noise", "all")
 
 
 def variant_off(variant: str) -> list[str]:
     """The corruption kinds a variant switches off."""
     if variant not in VARIANTS:
         raise ValueError(f"variant: expected one of {list(VARIANTS)}, got {variant!r}")
+    if variant == "none":
+        return []
     return [*KINDS, "noise"] if variant == "all" else [variant]
 
 

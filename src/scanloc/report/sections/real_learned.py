@@ -18,8 +18,9 @@ from scanloc.report.render.tables import fixed
 
 VERIFIED = "scanlocnet_verified"
 ABLATION_DIR = METRICS_DIR / "real_ablation"
-# (variant file, row label): the real_ablation stage's variants, after the full model's row
+# (variant file, row label): the real_ablation stage's variants, after the pipeline's model's row
 ABLATION_ROWS = (
+    ("none", "ablation baseline: every measured corruption"),
     ("no_return", "without no returns"),
     ("short", "without short readings"),
     ("long", "without long readings"),
@@ -89,7 +90,7 @@ def _ablation_table(ctx: ReportContext) -> Table | None:
         full = {k: raw.get(k) for k in ("top1_recall", "top5_recall", "top20_recall")}
         full["verified_top1_recall"] = verified.get("top1_recall")
         full["calibration_ece"] = verified.get("calibration_ece")
-        variants = [("every measured corruption (the pipeline's model)", full)]
+        variants = [("the pipeline's model (every measured corruption, denser training)", full)]
         paths = [ctx.builder.root / ABLATION_DIR / f"{log}_{v}.json" for v, _ in ABLATION_ROWS]
         if any(path.is_file() for path in paths):  # a log of params.yaml real_ablation_logs
             for path, (_, label) in zip(paths, ABLATION_ROWS, strict=True):
@@ -152,10 +153,12 @@ def build(ctx: ReportContext, spec: SectionSpec) -> list:
         section.blocks.append(
             Para(
                 "Ablation on the held-out real scans (the evaluation part of each log): the "
-                "learned localizer trained with every measured corruption, and without each "
-                "one (the real_ablation stage: the same training, one corruption off; on the "
-                "logs of params.yaml `real_ablation_logs`, the others show the pipeline's "
-                "model only). Top-K: "
+                "pipeline's model, then the real_ablation stage's trainings, with every "
+                "measured corruption (the ablation's baseline) and without each one, all at "
+                "the simulated maps' density of training scans per cell, so that its rows "
+                "differ in their corruption alone (conf/real_ablation.yaml; on the logs of "
+                "params.yaml `real_ablation_logs`, the others show the pipeline's model "
+                "only). Top-K: "
                 "the truth within 0.5 m and 10° of one of the K best hypotheses; verified "
                 "top-1: the best after verification; calibration error: the expected "
                 "calibration error of its score (10 bins)."
