@@ -432,6 +432,7 @@ def test_a_real_log_trains_denser_than_a_simulated_map():
     assert len(floors["real_train"]) == len(floors["real_ablation"]) == 1
     (real,), (simulated,) = floors["real_train"], floors["train_scanlocnet"]
     assert real > simulated
+    # intel's 529 pose cells at 12 x 25000 scans: the 36 epochs the tune hold-out chose
     assert training_epochs(12, 25_000, 529, real) == 36
 
 
