@@ -654,8 +654,9 @@ def test_dvc_stage_list_is_the_contract():
     assert expansions("scans") == set(DATASETS)
     seeded = ("drive", "kidnap", "kidnap_s1", "kidnap_s2", "kidnap_s3", "kidnap_s4")
     runs = {f"{m}-{r}" for m in maps for r in seeded}
-    assert expansions("trajectory") == runs | {f"{m}-tune_kidnap" for m in maps}
-    assert expansions("localize") == runs  # the tune run is localized by hand, when tuning
+    tune = ("tune_kidnap", "tune_kidnap_s1", "tune_kidnap_s2", "tune_kidnap_s3", "tune_kidnap_s4")
+    assert expansions("trajectory") == runs | {f"{m}-{r}" for m in maps for r in tune}
+    assert expansions("localize") == runs  # the tune runs are localized by hand, when tuning
     assert expansions("localize_cnn") == {"drive", "kidnap"}
     logs = set(params["real_logs"])
     assert "intel" in logs  # the real-data evaluation runs by default on the intel log

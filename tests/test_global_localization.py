@@ -85,3 +85,37 @@ def test_global_localization_groups_each_maps_evaluation_runs() -> None:
     assert figures["room"]["amcl_global"]["kidnaps_recovered_frac"] == 0.0
     with pytest.raises(ValueError, match="room_kidnap_s2"):
         global_localization(localization, {"room": ["room_kidnap", "room_kidnap_s2"]}, 20)
+
+
+def test_resolvable_rates_leave_out_the_ambiguous_stretches() -> None:
+    runs = [
+        _run(3, 1, [2, 5, 30], 2),  # start resolvable and quick; kidnap 3 (30 steps) ambiguous
+        _run(25, 1, [1, 30, 4], 2),  # start ambiguous (and slow); kidnap 2 (30 steps) resolvable
+    ]
+    flags = [[False, False, False, True], [True, False, False, False]]
+    fig = over_seeds(runs, converge_within=20, ambiguous=flags)
+    assert (fig["n_starts_ambiguous"], fig["n_starts_resolvable"]) == (1, 1)
+    assert (fig["n_kidnaps_ambiguous"], fig["n_kidnaps_resolvable"]) == (1, 5)
+    assert fig["convergence_success_resolvable"] == 1.0
+    assert fig["kidnaps_recovered_frac_resolvable"] == pytest.approx(4 / 5)
+    low, high = wilson_interval(4, 5)
+    assert fig["kidnaps_recovered_frac_resolvable_ci95_low"] == low
+    assert fig["kidnaps_recovered_frac_resolvable_ci95_high"] == high
+    assert fig["kidnaps_recovered_frac"] == pytest.approx(4 / 6)  # all kidnaps: unchanged
+    every = over_seeds(runs, converge_within=20, ambiguous=[[True] * 4, [True] * 4])
+    assert every["n_kidnaps_resolvable"] == 0 and "kidnaps_recovered_frac_resolvable" not in every
+    with pytest.raises(ValueError, match="3 look-alike flags"):
+        over_seeds(runs, converge_within=20, ambiguous=[[False] * 3, [False] * 4])
+    with pytest.raises(ValueError, match="1 look-alike lists for 2 runs"):
+        over_seeds(runs, converge_within=20, ambiguous=[[False] * 4])
+
+
+def test_global_localization_scores_resolvable_stretches_only_with_every_runs_flags() -> None:
+    good = _run(0, 1, [1, 1, 1], 3)
+    localization = {"room_kidnap": {"hybrid": good}, "room_kidnap_s1": {"hybrid": good}}
+    sets = {"room": ["room_kidnap", "room_kidnap_s1"]}
+    flags = {"room_kidnap": [False, True, False, False], "room_kidnap_s1": [False] * 4}
+    figures = global_localization(localization, sets, 20, flags)
+    assert figures["room"]["hybrid"]["n_kidnaps_resolvable"] == 5
+    partial = global_localization(localization, sets, 20, {"room_kidnap": flags["room_kidnap"]})
+    assert "n_kidnaps_resolvable" not in partial["room"]["hybrid"]

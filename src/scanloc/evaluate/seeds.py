@@ -17,6 +17,11 @@ keeps the per-run metric name for its mean, with `<name>_ci95_low`, `<name>_ci95
   `_median`, `_max` over all kidnaps): censored counts as in metrics.py (a localizer that never
   converges in a stretch gets the stretch's length), so they are lower bounds where censored.
 - `relosses`, `false_convergences`: mean per run with a Student-t 95 % interval, and `_total`.
+- Given which stretches are *ambiguous* (a copy of the map renders the same scans for their
+  first 20 steps: look_alikes.py), `n_starts_ambiguous` / `n_kidnaps_ambiguous` count them and
+  `convergence_success_resolvable` / `kidnaps_recovered_frac_resolvable` are the two rates over
+  the other stretches only (`n_starts_resolvable`, `n_kidnaps_resolvable` trials): what a
+  localizer achieves where the scans can tell.
 
 Real logs are judged over *filter* seeds instead (one run, the particle filters' seeds:
 `over_filter_seeds`, `evaluate_filter_seeds`): the run is the log, only the filter's draws
@@ -33,6 +38,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from scanloc.evaluate.metrics import RECOVERED_WITHIN_STEPS
 from scanloc.evaluate.table2 import evaluate_trajectory
 
 Z95 = 1.959963984540054  # the standard normal's 97.5 % quantile
@@ -83,9 +89,46 @@ def recovery_counts(metrics: Mapping[str, Any]) -> list[float]:
     return [float(metrics[f"recovery_steps_{k}"]) for k in range(1, int(metrics["kidnaps"]) + 1)]
 
 
-def over_seeds(runs: Sequence[Mapping[str, Any]], converge_within: int) -> dict[str, Any]:
+def _resolvable_rates(
+    runs: Sequence[Mapping[str, Any]],
+    quick: Sequence[int],
+    ambiguous: Sequence[Sequence[bool]],
+) -> dict[str, Any]:
+    """The start and kidnap rates over the stretches that are not ambiguous (module doc)."""
+    if len(ambiguous) != len(runs):
+        raise ValueError(f"over_seeds: {len(ambiguous)} look-alike lists for {len(runs)} runs")
+    starts = [int(q) for q, flags in zip(quick, ambiguous, strict=True) if not flags[0]]
+    kidnaps = []
+    for run, flags in zip(runs, ambiguous, strict=True):
+        counts = recovery_counts(run) if run.get("kidnaps") else []
+        if len(flags) != 1 + len(counts):
+            raise ValueError(
+                f"over_seeds: {len(flags)} look-alike flags for a run of {1 + len(counts)} "
+                "stretches"
+            )
+        pairs = zip(counts, flags[1:], strict=True)
+        kidnaps += [int(c <= RECOVERED_WITHIN_STEPS) for c, a in pairs if not a]
+    out: dict[str, Any] = {
+        "n_starts_ambiguous": len(runs) - len(starts),
+        "n_starts_resolvable": len(starts),
+        "n_kidnaps_ambiguous": sum(len(f) - 1 for f in ambiguous) - len(kidnaps),
+        "n_kidnaps_resolvable": len(kidnaps),
+    }
+    if starts:
+        out |= _rate("convergence_success_resolvable", sum(starts), len(starts))
+    if kidnaps:
+        out |= _rate("kidnaps_recovered_frac_resolvable", sum(kidnaps), len(kidnaps))
+    return out
+
+
+def over_seeds(
+    runs: Sequence[Mapping[str, Any]],
+    converge_within: int,
+    ambiguous: Sequence[Sequence[bool]] | None = None,
+) -> dict[str, Any]:
     """One localizer's figures over its evaluation runs (one metrics dict per seed, in seed
-    order; see the module docstring)."""
+    order; see the module docstring); `ambiguous`: per run, per stretch (start, each kidnap),
+    whether a look-alike lasts its first steps."""
     if not runs:
         raise ValueError("over_seeds: no runs")
     steps = [float(r["steps_to_converge"]) for r in runs]
@@ -112,6 +155,8 @@ def over_seeds(runs: Sequence[Mapping[str, Any]], converge_within: int) -> dict[
         values = [float(r[name]) for r in runs if r.get(name) is not None]
         if len(values) == len(runs):
             out |= _mean(name, values)
+    if ambiguous is not None:
+        out |= _resolvable_rates(runs, quick, ambiguous)
     out["seeds"] = {
         str(i): {
             "convergence_success": quick[i],
@@ -136,22 +181,27 @@ def global_localization(
     localization: Mapping[str, Mapping[str, Mapping[str, Any]]],
     evaluation_sets: Mapping[str, Sequence[str]],
     converge_within: int,
+    ambiguous: Mapping[str, Sequence[bool]] | None = None,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """{map: {localizer: figures over seeds}} from the per-trajectory metrics
     {trajectory: {localizer: metrics}}; `evaluation_sets` names each map's evaluation runs in
-    seed order. A localizer is scored over the runs that have it (n_seeds says how many)."""
+    seed order. A localizer is scored over the runs that have it (n_seeds says how many).
+    `ambiguous`: per trajectory, its stretches' look-alike flags (a map whose runs are all in
+    it gets the rates over its resolvable stretches)."""
+    ambiguous = ambiguous or {}
     out: dict[str, dict[str, dict[str, Any]]] = {}
     for map_name, trajectories in evaluation_sets.items():
         missing = [t for t in trajectories if t not in localization]
         if missing:
             raise ValueError(f"global localization of {map_name}: no metrics for {missing}")
         methods = sorted({m for t in trajectories for m in localization[t]})
-        out[map_name] = {
-            m: over_seeds(
-                [localization[t][m] for t in trajectories if m in localization[t]], converge_within
+        out[map_name] = {}
+        for m in methods:
+            scored = [t for t in trajectories if m in localization[t]]
+            flags = [ambiguous[t] for t in scored] if all(t in ambiguous for t in scored) else None
+            out[map_name][m] = over_seeds(
+                [localization[t][m] for t in scored], converge_within, flags
             )
-            for m in methods
-        }
     return out
 
 

@@ -33,6 +33,7 @@ METRICS_DIR = Path("reports/metrics")
 METRICS_JSON = METRICS_DIR / "localization.json"
 GLOBAL_METRICS_JSON = METRICS_DIR / "global_localization.json"
 REAL_SEEDS_JSON = METRICS_DIR / "real_seeds.json"
+LOOK_ALIKES_JSON = METRICS_DIR / "look_alikes.json"
 LOCALIZE_TIMING_DIR = Path("reports/localize_timing")
 # The wall-clock figures per localizer that the report shows beside the evaluated metrics.
 TIMING_FIGURES = ("time_per_scan_s", "time_per_scan_median_s", "setup_s")
@@ -265,6 +266,12 @@ def load_real_seed_figures(root: Path) -> Mapping[str, Mapping[str, Any]] | None
     return read_json(path) if path.is_file() else None
 
 
+def load_look_alikes(root: Path) -> Mapping[str, Mapping[str, Any]] | None:
+    """{map: its symmetries and look-alike stretches (evaluate/look_alikes.py)}, or None."""
+    path = root / LOOK_ALIKES_JSON
+    return read_json(path) if path.is_file() else None
+
+
 def total_stage_seconds(root: Path) -> float:
     """The sum of the stages' wall times in reports/timing/ (the report's own excluded)."""
     return sum(float(wall_s or 0.0) for _, wall_s in stage_timings(root))
@@ -274,8 +281,9 @@ def total_stage_seconds(root: Path) -> float:
 class Artifacts:
     """What several sections and the claims read, loaded once: the paper drive's truth and
     estimate tables, the localization metrics of every trajectory (with the localize stages'
-    wall-clock figures merged in), the training runs and the figures over seeds (trajectory
-    seeds of the maps, filter seeds of the real logs; None if evaluate wrote none)."""
+    wall-clock figures merged in), the training runs, the figures over seeds (trajectory
+    seeds of the maps, filter seeds of the real logs) and the maps' look-alike stretches (None
+    if evaluate wrote none)."""
 
     root: Path
     truth: np.ndarray
@@ -285,6 +293,7 @@ class Artifacts:
     _grids: dict[str, OccupancyGrid] = field(default_factory=dict, repr=False)
     global_figures: Mapping[str, Mapping[str, Mapping[str, Any]]] | None = None
     real_seed_figures: Mapping[str, Mapping[str, Any]] | None = None
+    look_alikes: Mapping[str, Mapping[str, Any]] | None = None
 
     @classmethod
     def load(cls, root: Path) -> Artifacts:
@@ -303,6 +312,7 @@ class Artifacts:
             tables,
             global_figures=load_global_figures(root),
             real_seed_figures=load_real_seed_figures(root),
+            look_alikes=load_look_alikes(root),
         )
 
     @property

@@ -1,20 +1,25 @@
 """`evaluate` stage: Table 2 (paper §4.4), modern and global-localization metrics for every
 localizer on every trajectory of the pipeline's maps (params.yaml `maps`) and real logs
-(`real_logs`); then, per map and log, the figures over its evaluation seeds (success rates
-with Wilson intervals, steps to converge and to recover, re-losses, false convergences); and,
+(`real_logs`); the look-alike stretches of each map's evaluation runs; then, per map and log,
+the figures over its evaluation seeds (success rates with Wilson intervals, steps to converge
+and to recover, re-losses, false convergences, the rates where the scans can tell); and,
 per real log, run and odometry source, the compared localizers over filter seeds
 (localize_seeds stage)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import yaml
 from omegaconf import DictConfig
 
+from scanloc.evaluate.look_alikes import LookAlikeParams, look_alikes_json, map_look_alikes
 from scanloc.evaluate.seeds import evaluate_filter_seeds, global_localization
 from scanloc.evaluate.table2 import evaluate_runs, nested_json
 from scanloc.io import atomic_path
+from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages._app import stage_main, timed_stage
 
 
@@ -42,6 +47,22 @@ def pipeline_bags(params_path: Path = Path("params.yaml")) -> list[str]:
     return list(bags)
 
 
+def maps_look_alikes(cfg: DictConfig, sets: Mapping[str, Sequence[str]]) -> dict[str, Any]:
+    """{map: look-alike figures of its evaluation runs} (evaluate/look_alikes.py)."""
+    sensor_file = Path(cfg.look_alikes.sensor_file)
+    laser = laser_spec_from_config(yaml.safe_load(sensor_file.read_text(encoding="utf-8")))
+    params = LookAlikeParams.from_config(
+        dict(cfg.look_alikes.params), "conf/evaluate.yaml: field 'look_alikes.params'"
+    )
+    root = Path(cfg.trajectory_root)
+    return {
+        name: map_look_alikes(
+            Path(cfg.map_root) / name / "map.yaml", laser, {r: root / r for r in runs}, params
+        )
+        for name, runs in sets.items()
+    }
+
+
 @stage_main("evaluate")
 def main(cfg: DictConfig) -> None:
     with timed_stage("evaluate", cfg.timing_dir):
@@ -58,7 +79,15 @@ def main(cfg: DictConfig) -> None:
         )
         sets = {m: [f"{m}_{run}" for run in cfg.seed_runs] for m in maps}
         sets |= {log: [f"{log}_{run}" for run in cfg.real_seed_runs] for log in logs}
-        figures = global_localization(metrics, sets, int(cfg.converge_within_steps))
+        look_alikes = maps_look_alikes(cfg, {m: sets[m] for m in maps})
+        with atomic_path(Path(cfg.look_alikes_path)) as tmp:
+            tmp.write_text(look_alikes_json(look_alikes), encoding="utf-8")
+        ambiguous = {
+            run: [bool(s["ambiguous"]) for s in stretches]
+            for doc in look_alikes.values()
+            for run, stretches in doc["runs"].items()
+        }
+        figures = global_localization(metrics, sets, int(cfg.converge_within_steps), ambiguous)
         with atomic_path(Path(cfg.global_metrics_path)) as tmp:
             tmp.write_text(nested_json(figures), encoding="utf-8")
         real_seeds = {

@@ -37,6 +37,8 @@ SEEDS_HEADER = [
     "converged in time [95 % CI]",
     "steps to converge (median / worst)",
     "kidnaps recovered ≤ 20 steps [95 % CI]",
+    "converged in time, resolvable starts [95 % CI]",
+    "kidnaps recovered, resolvable ones [95 % CI]",
     "recovery steps (median / worst)",
     "re-losses",
     "false convergences",
@@ -49,7 +51,8 @@ SEEDS_LEGEND = (
     "kidnap, '≥' where one never converged within its stretch (a censored count); re-losses "
     "and false convergences summed over the runs ('–': no covariance to be confident with). "
     "Tuning: the hybrid's proposal and hybrid_adaptive's switch were chosen on the tune set "
-    "only (<map>_tune_kidnap: its own seed and kidnap times, conf/seeds.yaml `tune`; `python -m "
+    "only (<map>_tune_kidnap, with its own seed and kidnap times, conf/seeds.yaml `tune`, "
+    "which now also holds <map>_tune_kidnap_s1 … s4 for the next tuning; `python -m "
     "scanloc.stages.tune study=hybrid` and `study=hybrid_adaptive`, the figures in their "
     "conf/localizer files), never on the runs this table scores; the ablations inherit the "
     "hybrid's. The amcl baselines keep ROS's or the matched settings; the learned localizer's "
@@ -99,12 +102,58 @@ def seed_rows(
                 _rate(f, "convergence_success", "n_seeds"),
                 _spread(f, "steps_to_converge", f.get("converged", 1) < 1),
                 _rate(f, "kidnaps_recovered_frac", "n_kidnaps"),
+                _rate(f, "convergence_success_resolvable", "n_starts_resolvable"),
+                _rate(f, "kidnaps_recovered_frac_resolvable", "n_kidnaps_resolvable"),
                 _spread(f, "recovery_steps", lost_kidnap),
                 _total(f, "relosses"),
                 _total(f, "false_convergences"),
             ]
         )
     return rows
+
+
+SYMMETRIES_SHOWN = 3  # per map, the strongest copies named in the look-alike paragraph
+
+
+def _symmetry_text(symmetry: Mapping[str, Any]) -> str:
+    turns = int(symmetry["quarter_turns"])
+    turn = f"a {90 * turns}° turn, then " if turns else ""
+    return (
+        f"{turn}a shift by ({symmetry['tx']:.2f}, {symmetry['ty']:.2f}) m "
+        f"({100 * symmetry['overlap']:.0f} % of the walls onto walls)"
+    )
+
+
+def look_alike_text(maps: list[str], look_alikes: Mapping[str, Mapping[str, Any]] | None) -> str:
+    """What the look-alike check found on each map (evaluate/look_alikes.py)."""
+    if look_alikes is None:
+        return "Look-alike stretches: not available (reports/metrics/look_alikes.json)."
+    docs = [look_alikes[name] for name in maps if name in look_alikes]
+    window = docs[0]["window"] if docs else MISSING
+    tolerance = f"{100 * docs[0]['tolerance_m']:.0f} cm" if docs else MISSING
+    parts = []
+    for name in maps:
+        doc = look_alikes.get(name)
+        if doc is None:
+            parts.append(f"{name}: not checked.")
+            continue
+        strongest = doc["symmetries"][:SYMMETRIES_SHOWN]
+        copies = "; ".join(_symmetry_text(s) for s in strongest) or "none"
+        parts.append(
+            f"{name}: {len(doc['symmetries'])} copies of the map tried, the strongest {copies}. "
+            "Ambiguous: "
+            f"{doc['starts_ambiguous']} of {doc['starts']} starts and "
+            f"{doc['kidnaps_ambiguous']} of {doc['kidnaps']} kidnaps."
+        )
+    return (
+        "Look-alike stretches (reports/metrics/look_alikes.json, evaluate/look_alikes.py): a "
+        "start or kidnap is ambiguous when a copy of the map (a turn by a multiple of 90° and a "
+        "shift that carry many walls onto walls) puts the robot where the noise-free scan is "
+        f"the same, every beam within {tolerance}, at each of the stretch's first {window} "
+        "steps: no "
+        "localizer can tell the true place from its copy in time there, and the 'resolvable' "
+        "columns give the rates over the other stretches. " + " ".join(parts)
+    )
 
 
 def _rows(name: str, methods: list[str], localization: Mapping[str, Any]) -> list[list[str]]:
@@ -162,6 +211,7 @@ def build(ctx: ReportContext, spec: SectionSpec) -> list[Section]:
         names = [*ctx.maps, *ctx.real_logs]  # a log's one kidnap run: <log>_kidnap
         seeded = [r for n in names for r in seed_rows(n, methods, over_seeds.get(n, {}))]
         section.blocks.append(Table(SEEDS_HEADER, seeded))
+        section.blocks.append(Para(look_alike_text(ctx.maps, ctx.artifacts.look_alikes)))
     section.blocks.append(
         Para("Seed 0 alone (<map>_drive and <map>_kidnap, the runs the figures below show):")
     )
