@@ -3,6 +3,7 @@ and which stretches of a run they keep ambiguous."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -142,12 +143,16 @@ def test_the_map_figures_count_ambiguous_starts_and_kidnaps(tmp_path) -> None:
     trajectory = Trajectory(
         times=np.arange(steps) * 0.1, truth=truth, odometry=truth.copy(), kidnap_steps=(20,)
     )
-    save_trajectory(trajectory, run_dir, np.zeros((steps, SPEC.num_beams), np.float32), {})
-    doc = map_look_alikes(tmp_path / "map" / "map.yaml", SPEC, {"room_kidnap": run_dir}, PARAMS)
+    ranges = np.zeros((steps, SPEC.num_beams), np.float32)
+    save_trajectory(trajectory, run_dir, ranges, {"sensor": dataclasses.asdict(SPEC)})
+    doc = map_look_alikes(tmp_path / "map" / "map.yaml", {"room_kidnap": run_dir}, PARAMS)
     assert (doc["starts"], doc["starts_ambiguous"]) == (1, 1)
     assert (doc["kidnaps"], doc["kidnaps_ambiguous"]) == (1, 1)
     assert doc["window"] == PARAMS.window and doc["symmetries"]
     assert look_alikes_json({"room": doc}) == look_alikes_json({"room": doc})
+    save_trajectory(trajectory, run_dir, ranges, {"sensor": {"num_beams": 1.5}})
+    with pytest.raises(ValueError, match=r"room_kidnap/meta.json: field 'sensor'"):
+        map_look_alikes(tmp_path / "map" / "map.yaml", {"room_kidnap": run_dir}, PARAMS)
 
 
 def test_bad_parameters_name_the_source_and_the_field() -> None:

@@ -39,8 +39,10 @@ import numpy as np
 from scipy.signal import fftconvolve
 
 from scanloc.evaluate.metrics import RECOVERED_WITHIN_STEPS
+from scanloc.io import read_json
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.raycast import CastMap, cast_exact
+from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.trajectory.format import load_trajectory
 from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import OccupancyGrid
@@ -256,18 +258,27 @@ def run_look_alikes(
     return out
 
 
+def run_laser(run_dir: Path) -> LaserSpec:
+    """The laser a run was rendered with (its meta.json `sensor`)."""
+    meta_path = run_dir / "meta.json"
+    try:
+        return laser_spec_from_config(read_json(meta_path).get("sensor"))
+    except ValueError as err:
+        raise ValueError(f"{meta_path}: field 'sensor': {err}") from None
+
+
 def map_look_alikes(
-    map_yaml: Path, laser: LaserSpec, runs: Mapping[str, Path], params: LookAlikeParams
+    map_yaml: Path, runs: Mapping[str, Path], params: LookAlikeParams
 ) -> dict[str, Any]:
-    """One map's symmetries and, per run directory, its stretches (run_look_alikes), with
-    the counts of ambiguous starts and kidnaps."""
+    """One map's symmetries and, per run directory, its stretches (run_look_alikes, with the
+    run's own laser), with the counts of ambiguous starts and kidnaps."""
     grid = load_map(map_yaml)
     symmetries = map_symmetries(grid, params)
     per_run = {}
     for name, run_dir in runs.items():
         traj, _ = load_trajectory(run_dir)
         per_run[name] = run_look_alikes(
-            grid, laser, traj.truth, traj.kidnap_steps, params, symmetries
+            grid, run_laser(run_dir), traj.truth, traj.kidnap_steps, params, symmetries
         )
     kidnaps = [s for run in per_run.values() for s in run[1:]]
     return {

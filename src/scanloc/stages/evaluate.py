@@ -19,7 +19,6 @@ from scanloc.evaluate.look_alikes import LookAlikeParams, look_alikes_json, map_
 from scanloc.evaluate.seeds import evaluate_filter_seeds, global_localization
 from scanloc.evaluate.table2 import evaluate_runs, nested_json
 from scanloc.io import atomic_path
-from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages._app import stage_main, timed_stage
 
 
@@ -49,15 +48,13 @@ def pipeline_bags(params_path: Path = Path("params.yaml")) -> list[str]:
 
 def maps_look_alikes(cfg: DictConfig, sets: Mapping[str, Sequence[str]]) -> dict[str, Any]:
     """{map: look-alike figures of its evaluation runs} (evaluate/look_alikes.py)."""
-    sensor_file = Path(cfg.look_alikes.sensor_file)
-    laser = laser_spec_from_config(yaml.safe_load(sensor_file.read_text(encoding="utf-8")))
     params = LookAlikeParams.from_config(
-        dict(cfg.look_alikes.params), "conf/evaluate.yaml: field 'look_alikes.params'"
+        dict(cfg.look_alikes), "conf/evaluate.yaml: field 'look_alikes'"
     )
     root = Path(cfg.trajectory_root)
     return {
         name: map_look_alikes(
-            Path(cfg.map_root) / name / "map.yaml", laser, {r: root / r for r in runs}, params
+            Path(cfg.map_root) / name / "map.yaml", {r: root / r for r in runs}, params
         )
         for name, runs in sets.items()
     }
