@@ -189,6 +189,10 @@ def test_the_stages_export_and_read_back(sim_run: Path, tmp_path: Path) -> None:
     assert_same_run(load_trajectory(tmp_path / "robot_real")[:2], load_trajectory(sim_run / "run"))
     meta = json.loads((tmp_path / "robot_real" / "meta.json").read_text())
     assert meta["name"] == "robot_real" and meta["sensor"]["num_beams"] == 667
+    # the sensor it read with, for the later stages' `~sensor +sensor_file=...`
+    written = yaml.safe_load((tmp_path / "maps" / "robot" / "sensor.yaml").read_text())
+    urg = yaml.safe_load((REPO / "conf" / "sensor" / "urg04lx.yaml").read_text())
+    assert written == urg == meta["sensor"] and meta["sensor_source"] == "conf/sensor/urg04lx.yaml"
     assert load_map(tmp_path / "maps" / "robot" / "map.yaml").cells.tobytes() == (
         load_map(sim_run / "map" / "map.yaml").cells.tobytes()
     )

@@ -96,6 +96,7 @@ def messages(
     scans: bool = True,
     odom_child: str = "base_link",
     tf_until_s: float = 9.0,
+    tf_gap_s: tuple[float, float] = (0.0, 0.0),
     static: bool = True,
     scan_stamps: np.ndarray = SCAN_NS,
     beams: int = BEAMS,
@@ -109,7 +110,8 @@ def messages(
         ]
         out.append(("/tf_static", TF, START_NS, T[TF](transforms=chain)))
     for ns, (x, y, yaw) in zip(TF_NS, robot_pose(TF_NS), strict=True):
-        if (ns - START_NS) / 1e9 <= tf_until_s:
+        t = (ns - START_NS) / 1e9
+        if t <= tf_until_s and not tf_gap_s[0] < t < tf_gap_s[1]:
             odom = transform(int(ns), "odom", odom_child, float(x), float(y), float(yaw))
             out.append(("/tf", TF, int(ns), T[TF](transforms=[odom])))
     if scans:
@@ -150,9 +152,13 @@ def test_tf_only_odometry_and_a_mounted_laser(tmp_path: Path) -> None:
     np.testing.assert_allclose(traj.truth, truth, atol=1e-9)
     assert meta["has_truth"] and meta["truth_missing_steps"] == 0
     want = np.stack([scan_ranges(k) for k in range(len(SCAN_NS))])
-    want[:, [0, 1, 2, 4]] = SPEC.no_return_value  # +inf, NaN, -inf, beyond range_max
+    want[:, :5] = SPEC.no_return_value  # +inf, NaN, -inf, 0, beyond range_max
     assert ranges.tobytes() == want.astype(np.float32).tobytes()
-    assert ranges[0, 3] == 0.0  # a reading below range_min stays what it was
+    assert meta["no_return_counts"] == {
+        "inf": 80, "nan": 80, "neg_inf": 80, "zero": 80, "below_range_min": 0,
+        "above_range_max": 80,
+    }  # fmt: skip
+    assert meta["laser_mount_source"] == "/tf_static"
 
 
 def test_without_truth_the_run_has_nan_truth(tmp_path: Path) -> None:
@@ -164,9 +170,10 @@ def test_without_truth_the_run_has_nan_truth(tmp_path: Path) -> None:
 BAD_BAGS = {
     "no_scans": (dict(scans=False), "/scan: missing: expected sensor_msgs/msg/LaserScan"),
     "odometry_gap": (
-        dict(tf_until_s=1.0),
-        r"/tf \(odom→base_link\): scan 42 .* has no odometry within pairing_tolerance_s = "
-        r"0.05 s \(nearest: 0.053 s before, none after\)",
+        dict(tf_gap_s=(0.5, 1.0)),
+        r"/tf \(odom→base_link\): scan 20 .* falls in a 0.500 s gap of the odometry .* above "
+        r"the bound 0.060 s \(3 x the median period; the stream's median period is 0.0200 s\)"
+        r".* set pairing_tolerance_s \(conf/bag.yaml\) to 0.500 or more",
     ),
     "no_odom_transform": (
         dict(odom_child="base_footprint"),

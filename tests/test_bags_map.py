@@ -76,6 +76,7 @@ def test_a_bag_with_truth_maps_its_mapping_part_and_runs_its_evaluation_part(
         "map.pgm",
         "map.yaml",
         "preview.png",
+        "sensor.yaml",  # the laser the run was read with, for the later stages
     ]
 
     got, got_ranges = load_trajectory(tmp_path / "robot_real")

@@ -10,7 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scanloc.real.carmen import CarmenFormatError, CarmenLog, carmen_beam_angles, read_carmen_log
+from scanloc.real.carmen import (
+    CarmenFormatError,
+    CarmenLog,
+    angle_units,
+    carmen_beam_angles,
+    read_carmen_log,
+)
 from scanloc.real.carmen_laser import clean_ranges, laser_spec
 from scanloc.real.carmen_odometry import odometry_at, scan_odometry
 
@@ -367,3 +373,55 @@ def test_corrected_logs_carry_corrected_poses_only(
     step_true = np.hypot(*np.diff(front.laser_poses[:, :2], axis=0).T)
     step_wheels = np.hypot(*np.diff(wheels[:, :2], axis=0).T)
     assert np.median(np.abs(step_wheels - step_true)) < 0.05
+
+
+@pytest.mark.parametrize(
+    ("beams", "fov", "resolution", "units"),
+    [
+        (361, None, None, ("degrees", "degrees")),
+        (361, 180.0, 0.5, ("degrees", "degrees")),
+        (361, 3.14159, None, ("radians", "degrees")),  # a fov alone under 2 pi: radians
+        (361, 3.14159, 0.5, ("radians", "degrees")),
+        (361, None, 0.00872665, ("degrees", "radians")),  # 0.5° in radians, default 180° fov
+        (361, 3.14159, 0.00872665, ("radians", "radians")),
+        (181, 3.14159, 1.0, ("radians", "degrees")),
+        (541, 270.0, 0.5, ("degrees", "degrees")),
+        (541, 4.71239, 0.00872665, ("radians", "radians")),  # a 270° Hokuyo, all in radians
+    ],
+)
+def test_angle_params_in_degrees_or_radians(
+    beams: int, fov: float | None, resolution: float | None, units: tuple[str, str]
+) -> None:
+    assert angle_units(beams, fov, resolution) == units
+
+
+def test_a_log_with_its_fov_in_radians_reads_and_records_it(tmp_path: Path) -> None:
+    lines = [
+        "PARAM laser_front_laser_fov 3.14159 0 host 0",
+        flaser([1.0] * 361, (0, 0, 0), 1.0),
+    ]
+    log = read_carmen_log(write_log(tmp_path / "radians.log", lines))
+    assert log.front is not None
+    assert np.degrees(log.front.beam_angles()[[0, 1, -1]]) == pytest.approx(
+        [-90.0, -89.5, 90.0], abs=1e-3
+    )
+    assert log.angle_params == {
+        "laser_front_laser_fov": {
+            "value": 3.14159,
+            "unit": "radians",
+            "degrees": pytest.approx(179.9998, abs=1e-3),
+        }
+    }
+
+
+def test_carmen_07_numbered_laser_params(tmp_path: Path) -> None:
+    lines = [
+        "PARAM laser_laser1_fov 100 0 host 0",
+        "PARAM laser_laser1_resolution 0.25 0 host 0",
+        flaser([1.0] * 401, (0, 0, 0), 1.0),
+    ]
+    log = read_carmen_log(write_log(tmp_path / "numbered.log", lines))
+    assert log.front is not None
+    assert np.degrees(log.front.beam_angles()[[0, 1, -1]]) == pytest.approx([-50.0, -49.75, 50.0])
+    assert {p["unit"] for p in log.angle_params.values()} == {"degrees"}
+    assert set(log.angle_params) == {"laser_laser1_fov", "laser_laser1_resolution"}

@@ -381,9 +381,11 @@ def test_maps_stage_on_a_map_too_large_writes_nothing(tmp_path: Path) -> None:
         tmp_path, "map=generated_rooms", "map.name=bad", "checks.memory_budget=0.001"
     )
     assert result.returncode != 0
-    assert "MapTooLargeError: map 'bad' (conf/map, source: generated): 360 x 480 cells" in (
-        result.stderr
+    assert (
+        "scanloc.stages.maps: error: map 'bad' (conf/map, source: generated): 360 x 480 cells"
+        in (result.stderr)
     )
+    assert result.returncode == 2 and "Traceback" not in result.stderr
     assert not (tmp_path / "maps").exists()
 
 

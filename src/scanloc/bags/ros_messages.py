@@ -8,7 +8,8 @@ trip through a bag bit for bit:
   one ulp per component of the plain one (all equally valid unit quaternions), one that decodes
   to θ exactly;
 - ranges: REP 117: a reading beyond range_max (scanloc's "no return" fill) is written as +inf;
-  the reader turns +inf, NaN and anything beyond range_max back into the sensor's fill value.
+  the reader turns +inf (and every other no-return convention: read.py) back into the
+  sensor's fill value.
 Times are the run's times after a fixed epoch (EPOCH_NS), never the wall clock.
 """
 

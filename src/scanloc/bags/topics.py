@@ -3,11 +3,15 @@
 rosbags' AnyReader opens either kind (a ROS 1 `.bag` file, a ROS 2 bag folder, or the .db3 /
 .mcap file inside one) with the bag's own message definitions (ROS 2 Humble's where a bag has
 none). Stamps are the messages' header stamps, in nanoseconds.
+
+Whatever rosbags raises on a bag it cannot read (a bare AssertionError on an old or broken ROS 1
+index, struct errors on a truncated file, a KeyError on an unknown message type, ...) becomes a
+BagError naming the bag, the topic ("(none)" where no topic is at fault) and what to do.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,6 +21,7 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.typesys import Stores, get_typestore
 
 from scanloc.bags.errors import BagError
+from scanloc.bags.mount import TfSpread
 from scanloc.bags.ros_messages import (
     POSE_TYPES,
     SCAN,
@@ -27,6 +32,10 @@ from scanloc.bags.ros_messages import (
 )
 
 ANGLE_TOLERANCE = 0.5  # of an increment: how far angle_min + (n-1)·increment may miss angle_max
+REPAIR = (
+    "if it is a ROS 1 bag, reindex it with `rosbag reindex` (or `rosbags-convert` it to ROS 2); "
+    "a ROS 2 bag may need `ros2 bag reindex` or `rosbags-convert`"
+)
 
 
 def bag_path(path: str | Path) -> Path:
@@ -70,6 +79,12 @@ class PoseStream:
         )
 
 
+def rosbags_failure(bag: str | Path, topic: str, doing: str, err: BaseException) -> BagError:
+    """What rosbags raised, as a BagError that says what to do (module doc)."""
+    what = f"{type(err).__name__}: {err}" if str(err) else type(err).__name__
+    return BagError(bag, topic, f"rosbags could not {doing} ({what}); {REPAIR}")
+
+
 def open_bag(path: str | Path) -> AnyReader:
     """An opened AnyReader; an unreadable bag is a BagError."""
     where = bag_path(path)
@@ -77,8 +92,44 @@ def open_bag(path: str | Path) -> AnyReader:
         reader = AnyReader([where], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except (AnyReaderError, FileNotFoundError, OSError) as err:
-        raise BagError(path, "(none)", f"not a readable ROS 1 or ROS 2 bag: {err}") from None
+        raise BagError(
+            path, "(none)", f"not a readable ROS 1 or ROS 2 bag: {err}; {REPAIR}"
+        ) from None
+    except Exception as err:  # rosbags' own failures: bare asserts, struct errors, ...
+        raise rosbags_failure(path, "(none)", "open it", err) from err
     return reader
+
+
+def close_bag(reader: AnyReader) -> None:
+    """Close quietly: a bag that failed mid-read may fail to close too, and the first error
+    is the one to report."""
+    try:
+        reader.close()
+    except Exception:  # the read's own error is already on its way
+        pass
+
+
+def messages(
+    reader: AnyReader, bag: str | Path, connections: list[Any]
+) -> Iterator[tuple[str, Any]]:
+    """(topic, deserialised message) of `connections` in bag order; rosbags' failures while
+    reading or deserialising are BagErrors (module doc)."""
+    stream = iter(reader.messages(connections=connections))
+    read = 0
+    while True:
+        try:
+            conn, _, raw = next(stream)
+        except StopIteration:
+            return
+        except Exception as err:
+            raise rosbags_failure(bag, "(none)", f"read message {read} of the bag", err) from err
+        try:
+            msg = reader.deserialize(raw, conn.msgtype)
+        except Exception as err:
+            doing = f"deserialise its {conn.msgtype} message"
+            raise rosbags_failure(bag, conn.topic, doing, err) from err
+        read += 1
+        yield conn.topic, msg
 
 
 def check_topic(reader: AnyReader, bag: str | Path, topic: str, types: Iterable[str]) -> str:
@@ -134,13 +185,15 @@ def _check_scan(bag: str | Path, topic: str, index: int, msg: Any, first: dict[s
 @dataclass
 class BagTopics:
     """What `read_topics` collected: scans, pose streams by topic, the tf transforms wanted,
-    and every static transform (parent, child) → (x, y, yaw)."""
+    every static transform (parent, child) → (x, y, yaw) and how each transform on tf
+    varies (for a laser mount published there, bags/mount.py)."""
 
     scans: ScanStream
     poses: dict[str, PoseStream]
     transforms: dict[tuple[str, str], PoseStream]
     static: dict[tuple[str, str], tuple[float, float, float]]
     types: dict[str, str]
+    dynamic: dict[tuple[str, str], TfSpread] = field(default_factory=dict)
 
 
 def read_topics(
@@ -150,10 +203,12 @@ def read_topics(
     tf_topic: str | None = None,
     tf_pairs: Iterable[tuple[str, str]] = (),
     tf_static_topic: str | None = None,
+    tf_required: bool = True,
 ) -> BagTopics:
     """One pass over the bag: the scans (None: none; checked: geometry, beam count), the pose topics
     (PoseStamped, PoseWithCovarianceStamped, Odometry), the transforms `tf_pairs` of
-    `tf_topic`, and the static transforms of `tf_static_topic` (absent: none)."""
+    `tf_topic` (absent: an error if `tf_required`, else none), and the static transforms of
+    `tf_static_topic` (absent: none)."""
     reader = open_bag(bag)
     try:
         types = (
@@ -163,7 +218,7 @@ def read_topics(
         )
         for topic in pose_topics:
             types[topic] = check_topic(reader, bag, topic, POSE_TYPES)
-        if tf_topic is not None:
+        if tf_topic is not None and (tf_required or tf_topic in reader.topics):
             types[tf_topic] = check_topic(reader, bag, tf_topic, (TF,))
         if tf_static_topic is not None and tf_static_topic in reader.topics:
             types[tf_static_topic] = check_topic(reader, bag, tf_static_topic, (TF,))
@@ -172,9 +227,7 @@ def read_topics(
         for pair in tf_pairs:
             found.transforms[(frame(pair[0]), frame(pair[1]))] = PoseStream()
         connections = [c for c in reader.connections if c.topic in types]
-        for conn, _, raw in reader.messages(connections=connections):
-            msg = reader.deserialize(raw, conn.msgtype)
-            topic = conn.topic
+        for topic, msg in messages(reader, bag, connections):
             if topic == scan_topic:
                 scans = found.scans
                 _check_scan(bag, topic, len(scans.stamps), msg, scans.geometry)
@@ -190,7 +243,7 @@ def read_topics(
             else:
                 _add_transforms(found, msg, wanted, static=topic == tf_static_topic)
     finally:
-        reader.close()
+        close_bag(reader)
     return found
 
 
@@ -201,8 +254,14 @@ def _add_transforms(found: BagTopics, msg: Any, wanted: dict[str, str], static: 
         pose = (float(t.x), float(t.y), quaternion_yaw(q.x, q.y, q.z, q.w))
         if static:
             found.static[(parent, child)] = pose
-        elif wanted.get(parent) == child:
+            continue
+        if wanted.get(parent) == child:
             stream = found.transforms[(parent, child)]
             stream.stamps.append(stamp_of(tr.header))
             stream.poses.append(pose)
             stream.covs.append(np.full(6, np.nan))
+        spread = found.dynamic.get((parent, child))
+        if spread is None:
+            found.dynamic[(parent, child)] = TfSpread(pose)
+        else:
+            spread.add(pose)

@@ -52,8 +52,16 @@ __all__ = [
 DEFAULT_FOV_DEG = 180.0
 # Which message feeds each stream; the first one present wins (ROBOTLASER carries its angles).
 STREAM_MESSAGES = {"front": ("ROBOTLASER1", "FLASER"), "rear": ("ROBOTLASER2", "RLASER")}
-# PARAM names of the old-format lasers' geometry (degrees), as in carmen.ini.
-PARAM_PREFIX = {"front": "laser_front_laser", "rear": "laser_rear_laser"}
+# PARAM names of the old-format lasers' geometry, as in carmen.ini: CARMEN 0.5's
+# `laser_front_laser_*` and CARMEN 0.7's numbered `laser_laser1_*` (laser 1 is the front one);
+# the first present wins.
+PARAM_PREFIXES = {
+    "front": ("laser_front_laser", "laser_laser1"),
+    "rear": ("laser_rear_laser", "laser_laser2"),
+}
+# A field of view or resolution PARAM no larger than this is in radians: no scanning laser
+# has a field of view of under 2 pi degrees, and CARMEN's degrees never go above 360.
+MAX_RADIANS_VALUE = 2.0 * math.pi + 1e-6
 _OLD_LASER_FIELDS = ("x", "y", "theta", "odom_x", "odom_y", "odom_theta")
 _ROBOT_LASER_FIELDS = (
     "laser_pose_x",
@@ -131,6 +139,8 @@ class CarmenLog:
     odometry: Odometry
     params: dict[str, str]
     skipped: dict[str, int]
+    # How the beam-angle PARAMs were read, where a log has them: name -> {value, unit, degrees}
+    angle_params: dict[str, dict[str, object]] = field(default_factory=dict)
 
 
 def carmen_beam_angles(
@@ -157,6 +167,40 @@ def carmen_beam_angles(
     if not resolution > 0.0 or (num_beams - 1) * resolution > fov * (1.0 + 1e-9):
         raise ValueError(f"{num_beams} beams at {resolution}° do not fit in a {fov}° field of view")
     return math.radians(-0.5 * fov), math.radians(resolution)
+
+
+def _fits(num_beams: int, fov_deg: float, resolution_deg: float) -> bool:
+    """Whether n beams at the resolution fill the fov: inclusively, or as a SICK scan with its
+    last beam dropped (carmen_beam_angles), within 1 %."""
+    spans = ((num_beams - 1) * resolution_deg, num_beams * resolution_deg)
+    return any(abs(span - fov_deg) <= 0.01 * fov_deg for span in spans)
+
+
+def angle_units(num_beams: int, fov: float | None, resolution: float | None) -> tuple[str, str]:
+    """("degrees" | "radians") of a log's fov and resolution PARAMs (either may be None).
+
+    CARMEN writes degrees, but some logs write radians (a 180° fov as 3.14159). A fov of at
+    most 2 pi is radians: no laser scans less than 6.3°. A resolution is degrees unless only
+    radians make the beam count fill the fov (the default 180° without a fov PARAM), as
+    carmen_beam_angles lays beams out.
+    """
+
+    def could_be_radians(value: float | None) -> bool:
+        return value is not None and 0 < value <= MAX_RADIANS_VALUE
+
+    fov_unit = "radians" if could_be_radians(fov) else "degrees"
+    if resolution is None or not could_be_radians(resolution):
+        return fov_unit, "degrees"
+    fov_deg = (
+        DEFAULT_FOV_DEG
+        if fov is None
+        else fov * (math.degrees(1.0) if fov_unit == "radians" else 1.0)
+    )
+    if not _fits(num_beams, fov_deg, resolution) and _fits(
+        num_beams, fov_deg, math.degrees(resolution)
+    ):
+        return fov_unit, "radians"
+    return fov_unit, "degrees"
 
 
 @dataclass
@@ -199,6 +243,7 @@ class _Reader:
         self.odom_poses: list[tuple[float, float, float]] = []
         self.odom_echo: list[bool] = []
         self.params: dict[str, str] = {}
+        self.angle_params: dict[str, dict[str, object]] = {}
         self.param_where: dict[str, str] = {}
         self.skipped: dict[str, int] = {}
         self.last_laser: tuple[tuple[float, ...], tuple[float, ...]] | None = None
@@ -292,16 +337,33 @@ class _Reader:
         self.params[name] = " ".join(tokens[2:-3]) if len(tokens) > 6 else tokens[2]
         self.param_where[name] = line.where
 
-    def _param_degrees(self, name: str) -> float | None:
+    def _param_number(self, name: str) -> float | None:
         if name not in self.params:
             return None
         try:
             return float(self.params[name])
         except ValueError:
             raise CarmenFormatError(
-                f"{self.param_where[name]}: PARAM '{name}': expected a number of degrees, "
-                f"got {self.params[name]!r}"
+                f"{self.param_where[name]}: PARAM '{name}': expected a number of degrees or "
+                f"radians, got {self.params[name]!r}"
             ) from None
+
+    def _angle_params(self, which: str) -> tuple[str, str]:
+        """The (fov, resolution) PARAM names of a laser in the log's spelling."""
+        for prefix in PARAM_PREFIXES[which]:
+            names = f"{prefix}_fov", f"{prefix}_resolution"
+            if any(name in self.params for name in names):
+                return names
+        prefix = PARAM_PREFIXES[which][0]
+        return f"{prefix}_fov", f"{prefix}_resolution"
+
+    def _degrees(self, name: str, value: float | None, unit: str) -> float | None:
+        """A beam-angle PARAM in degrees, its unit recorded in angle_params."""
+        if value is None:
+            return None
+        degrees = math.degrees(value) if unit == "radians" else value
+        self.angle_params[name] = {"value": value, "unit": unit, "degrees": degrees}
+        return degrees
 
     def stream(self, which: str) -> LaserStream | None:
         present = [m for m in STREAM_MESSAGES[which] if m in self.scans]
@@ -312,9 +374,11 @@ class _Reader:
         scans = self.scans[present[0]]
         if scans.angle_min is not None and scans.angle_increment is not None:
             return scans.stream(scans.angle_min, scans.angle_increment)
-        fov_name = f"{PARAM_PREFIX[which]}_fov"
-        res_name = f"{PARAM_PREFIX[which]}_resolution"
-        fov, resolution = self._param_degrees(fov_name), self._param_degrees(res_name)
+        fov_name, res_name = self._angle_params(which)
+        fov, resolution = self._param_number(fov_name), self._param_number(res_name)
+        fov_unit, res_unit = angle_units(scans.num_beams, fov, resolution)
+        fov = self._degrees(fov_name, fov, fov_unit)
+        resolution = self._degrees(res_name, resolution, res_unit)
         try:
             angle_min, increment = carmen_beam_angles(scans.num_beams, fov, resolution)
         except ValueError as err:
@@ -364,4 +428,5 @@ def read_carmen_log(path: str | os.PathLike[str]) -> CarmenLog:
         odometry=odometry,
         params=reader.params,
         skipped=dict(sorted(reader.skipped.items())),
+        angle_params=reader.angle_params,
     )

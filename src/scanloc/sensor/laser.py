@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+# How far beam angles may pass ±pi: a LaserScan's float32 angle_max for a 360° laser is
+# float32(pi) = pi + 8.7e-8, and angles only ever enter cos and sin.
+ANGLE_SLACK_RAD = 1e-6
 
 
 @dataclass(frozen=True)
@@ -29,6 +34,12 @@ class LaserSpec:
         if not self.angle_max > self.angle_min:
             raise ValueError(
                 f"angle_max ({self.angle_max}) must exceed angle_min ({self.angle_min})"
+            )
+        limit = math.pi + ANGLE_SLACK_RAD
+        if not (-limit <= self.angle_min and self.angle_max <= limit):
+            raise ValueError(
+                f"angle_min and angle_max must lie within [-pi, pi] (radians), got "
+                f"{self.angle_min!r} and {self.angle_max!r}"
             )
         if not 0 <= self.range_min < self.range_max:
             raise ValueError(

@@ -8,6 +8,7 @@ import math
 import numba
 import numpy as np
 
+from scanloc.sensor.laser import ANGLE_SLACK_RAD
 from scanloc.world.occupancy_grid import OccupancyGrid
 
 
@@ -31,8 +32,12 @@ def check_cast_inputs(
         raise ValueError(f"poses must have shape (N, 3), got {poses.shape}")
     if angles.ndim != 1 or angles.size == 0:
         raise ValueError(f"beam angles must have shape (B,) with B >= 1, got {angles.shape}")
-    if not (np.all(np.diff(angles) >= 0) and angles[0] >= -math.pi and angles[-1] <= math.pi):
-        raise ValueError("beam angles must be ascending and within [-pi, pi]")
+    limit = math.pi + ANGLE_SLACK_RAD
+    if not (np.all(np.diff(angles) >= 0) and angles[0] >= -limit and angles[-1] <= limit):
+        raise ValueError(
+            f"beam angles must be ascending and within [-pi, pi], got {angles[0]!r} to "
+            f"{angles[-1]!r} rad"
+        )
     if not np.isfinite(poses).all():
         raise ValueError("poses must be finite")
     height, width = grid_shape

@@ -1,4 +1,11 @@
-"""What every stage entry point shares: Hydra wiring, where outputs go, and per-stage wall time.
+"""What every stage entry point shares: Hydra wiring, where outputs go, per-stage wall time, and
+how a user's mistake is reported.
+
+A user's mistake (a bad file, field, topic or setting: ValueError and its kinds, a missing
+file, a missing or unknown config value) prints its message, which names the file, the field
+and what was expected, and exits with status 2, without a traceback; SCANLOC_TRACEBACK=1 shows
+the traceback too. Anything else is a bug and keeps its traceback, and so does a job of a
+multirun, whose failure the sweep records (scanloc.sweep_summary).
 
 Where outputs go: a stage's config lists the keys it writes (`outputs`). Under DVC (which sets
 DVC_STAGE for every stage command) they are the pipeline's tracked paths. A run by hand, or a
@@ -22,12 +29,67 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf.errors import ConfigAttributeError, ConfigKeyError, MissingMandatoryValue
 
 from scanloc.io import write_json
 
 # Lightning 2.6 on torch 2.13 warns about a torch-internal deprecation on every run; it is
 # not actionable here and would bury the stages' own messages.
 warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
+
+
+# A user's mistake, not a bug (module docstring); the library raises these with messages that
+# name the file, the field and what was expected.
+USER_ERRORS: tuple[type[BaseException], ...] = (
+    ValueError,
+    FileNotFoundError,
+    NotADirectoryError,
+    IsADirectoryError,
+    PermissionError,
+    MissingMandatoryValue,
+    ConfigKeyError,
+    ConfigAttributeError,
+)
+USER_ERROR_STATUS = 2
+
+
+def user_error_exit(program: str, err: BaseException) -> None:
+    """Print a user's mistake as `<program>: error: <message>` and exit with USER_ERROR_STATUS,
+    unless SCANLOC_TRACEBACK is set (then the caller re-raises for the traceback)."""
+    if os.environ.get("SCANLOC_TRACEBACK", "") not in ("", "0"):
+        return
+    message = str(err) or type(err).__name__
+    if isinstance(err, MissingMandatoryValue):
+        message = f"config field '{err.full_key}': expected a value (give {err.full_key}=...)"
+    elif isinstance(err, ConfigKeyError | ConfigAttributeError):
+        message = f"config field '{err.full_key}': {message.splitlines()[0]}"
+    print(
+        f"{program}: error: {message}\n"
+        "(SCANLOC_TRACEBACK=1 shows where it was raised)",
+        file=sys.stderr,
+    )
+    raise SystemExit(USER_ERROR_STATUS)
+
+
+def module_name(module: str) -> str:
+    """A module's importable name, also for the one run as `python -m` (named __main__)."""
+    if module == "__main__":
+        spec = getattr(sys.modules["__main__"], "__spec__", None)
+        return spec.name if spec is not None else Path(sys.argv[0]).stem
+    return module
+
+
+def reporting_user_errors(program: str, main: Callable[..., Any]) -> Callable[..., Any]:
+    """`main` with a user's mistake reported as user_error_exit does (module docstring)."""
+
+    def checked(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return main(*args, **kwargs)
+        except USER_ERRORS as err:
+            user_error_exit(program, err)
+            raise
+
+    return checked
 
 
 def conf_dir() -> str:
@@ -45,7 +107,9 @@ def stage_main(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Call
     def decorate(task: Callable[[DictConfig], Any]) -> Callable[[], Any]:
         def run(cfg: DictConfig) -> Any:
             redirect_outputs(cfg)
-            return task(cfg)
+            if HydraConfig.get().mode == RunMode.MULTIRUN:
+                return task(cfg)  # a failed job is the sweep's to record (sweep_summary)
+            return reporting_user_errors(module_name(task.__module__), task)(cfg)
 
         run.__name__, run.__module__ = task.__name__, task.__module__
         main = hydra.main(version_base=None, config_path=conf_dir(), config_name=config_name)(run)

@@ -326,11 +326,12 @@ def check_memory(
     )
 
 
-def pipeline_sizes(map_name: str, profile: str) -> PipelineSizes:
+def pipeline_sizes(map_name: str, profile: str, real_log: bool = False) -> PipelineSizes:
     """What the later stages allocate for map `map_name` at `profile`, read from their own
     configs as DVC composes them: the scans datasets of this map (its validation scans, and
-    Table 1's where they are drawn on it), the learned model's training scans and pose grid,
-    and whether some localizer builds amcl's beam-model range table."""
+    Table 1's where they are drawn on it), the learned model's training scans and pose grid
+    (`real_log`: as real_train and bag_train train it), and whether some localizer builds
+    amcl's beam-model range table."""
 
     def conf(name: str, *overrides: str) -> DictConfig:
         return compose(name, overrides=[f"profile={profile}", *overrides])
@@ -341,7 +342,7 @@ def pipeline_sizes(map_name: str, profile: str) -> PipelineSizes:
         dataset = conf("scans", f"dataset={option}").dataset
         if option != "map_validation" and dataset.map == map_name:
             datasets[str(dataset.name)] = int(dataset.num_samples)
-    net = conf("scanlocnet", f"map_name={map_name}")
+    net = conf("scanlocnet", f"map_name={map_name}", f"real_log={str(real_log).lower()}")
     listed = localizer_overrides("localize")
     localizers = conf("localize", f"map_name={map_name}", *listed).localizers.values()
     beam = [loc for loc in localizers if loc.get("laser_model_type") == "beam"]
@@ -353,7 +354,11 @@ def pipeline_sizes(map_name: str, profile: str) -> PipelineSizes:
         heading_bins=int(net.grid.heading_bins),
         features=int(net.net.features),
         epochs=int(net.training.epochs),
-        min_samples_per_cell=int(net.training.min_samples_per_cell),
+        min_samples_per_cell=int(
+            net.training.real_log_min_samples_per_cell
+            if real_log
+            else net.training.min_samples_per_cell
+        ),
         val_scans=int(val.dataset.num_samples),
         beam_lut=(
             (float(beam[0].beam_lut_resolution), int(beam[0].beam_lut_angles)) if beam else None

@@ -16,7 +16,7 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from scanloc.io import atomic_dir, write_json
-from scanloc.progress import duration
+from scanloc.models.trainer_setup import cpu_has_native_bf16
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.stages.budget import (
     check_memory,
@@ -25,8 +25,8 @@ from scanloc.stages.budget import (
     free_pose_cells,
     physical_memory,
     pipeline_sizes,
-    scanlocnet_training_seconds,
 )
+from scanloc.stages.site_budget import check_training_time, training_limit_minutes
 from scanloc.world.build import build_map, map_provenance, render_map_preview
 from scanloc.world.map_checks import (
     border_advice,
@@ -57,6 +57,14 @@ def main(cfg: DictConfig) -> None:
         components = check_map(
             grid, label, from_file, float(checks.max_occupied_share), border_fix=border_fix
         )
+        training = ""
+        if estimate is not None:
+            cells = free_pose_cells(grid, sizes)
+            profile = str(checks.profile)
+            limit = training_limit_minutes(to_dict(checks), profile)
+            training = "; " + check_training_time(
+                label, sizes, cells, profile, limit, cpu_has_native_bf16()
+            )
         provenance = map_provenance(map_cfg)
         with atomic_dir(out_dir) as tmp:
             save_map(grid, tmp / "map.yaml")
@@ -66,12 +74,9 @@ def main(cfg: DictConfig) -> None:
     shares = cell_shares(grid)
     memory = ""
     if estimate is not None:
-        cells = free_pose_cells(grid, sizes)
         memory = (
             f"; estimated peak {format_bytes(estimate.need)} ({estimate.peak_stage}, profile "
-            f"{checks.profile}) of {format_bytes(physical_memory())}; ScanLocNet's training "
-            f"~{duration(scanlocnet_training_seconds(sizes, cells))} in bf16, "
-            f"~{duration(scanlocnet_training_seconds(sizes, cells, bf16=False))} in float32"
+            f"{checks.profile}) of {format_bytes(physical_memory())}{training}"
         )
     print(
         f"maps: {label}: {grid.width} x {grid.height} cells at {grid.resolution:g} m, free "

@@ -18,10 +18,12 @@ data/maps/<log>/residuals.json.
 from __future__ import annotations
 
 import dataclasses
+import sys
 from pathlib import Path
 
 import numpy as np
 import yaml
+from hydra import compose
 from omegaconf import DictConfig
 
 from scanloc.data.scan_dataset import save_scan_dataset
@@ -49,6 +51,7 @@ from scanloc.real.split import (
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
 from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
+from scanloc.stages.site_budget import check_site
 from scanloc.trajectory.format import Trajectory, save_trajectory
 from scanloc.trajectory.laser_odometry import drift, increments, laser_odometry
 
@@ -180,10 +183,6 @@ def main(cfg: DictConfig) -> None:
             cfg.split.max_evaluation_scans,
         )
         m, e = split.mapping, split.evaluation
-        mount, mount_info = mapping_mount(cfg, log, laser_truth, m)
-        truth = base_poses(laser_truth, mount)
-        wheel = scan_odometry(log, str(cfg.stream), mount)[:count]
-        laser, fallbacks = laser_odometry(ranges, angles, spec.range_max, wheel, mount)
         # Mapping: a beam with no return says nothing reliable (glass, open doors, the sensor's
         # limit), and clearing free space along all of it would open the map to its border.
         hits = np.where(ranges < spec.range_max, ranges, np.float32(np.nan))
@@ -191,6 +190,18 @@ def main(cfg: DictConfig) -> None:
             laser_truth[m], hits[m], angles, spec.range_max,
             resolution=float(cfg.mapping.resolution), margin=float(cfg.mapping.margin),
         )  # fmt: skip
+        training = check_site(
+            f"real log {cfg.log_name} ({log_path})", grid, str(cfg.log_name), str(cfg.profile.name),
+            to_dict(compose("maps").checks), True, spec.num_beams,
+        )  # fmt: skip
+        print(
+            f"real: {cfg.log_name}: {grid.width} x {grid.height} map cells; {training}",
+            file=sys.stderr,
+        )
+        mount, mount_info = mapping_mount(cfg, log, laser_truth, m)
+        truth = base_poses(laser_truth, mount)
+        wheel = scan_odometry(log, str(cfg.stream), mount)[:count]
+        laser, fallbacks = laser_odometry(ranges, angles, spec.range_max, wheel, mount)
         save_log_map(grid, Path(cfg.map_dir) / "map.yaml", Path(cfg.map_dir) / "preview.png")
         simulator_args = {
             "spec": spec,
@@ -217,7 +228,10 @@ def main(cfg: DictConfig) -> None:
         uncovered = e[covered["uncovered_steps"]]  # as log scan indices
         metrics = split_metrics(split, count, covered, runs["real"][0], fallbacks)
         metrics["laser_residuals"] = residuals["measured"] | {"fitted": corruptions.to_dict()}
-        write_json(Path(cfg.metrics_file), metrics)
+        # How the log's beam-angle PARAMs were read (degrees or radians): the stage's report,
+        # not the runs' (their meta.json carries what the later stages use).
+        angle_params = {"laser_angle_params": log.angle_params} if log.angle_params else {}
+        write_json(Path(cfg.metrics_file), metrics | angle_params)
         meta = {
             "map": cfg.log_name,
             "log": log_path.name,
