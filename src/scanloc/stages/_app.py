@@ -64,8 +64,7 @@ def user_error_exit(program: str, err: BaseException) -> None:
     elif isinstance(err, ConfigKeyError | ConfigAttributeError):
         message = f"config field '{err.full_key}': {message.splitlines()[0]}"
     print(
-        f"{program}: error: {message}\n"
-        "(SCANLOC_TRACEBACK=1 shows where it was raised)",
+        f"{program}: error: {message}\n(SCANLOC_TRACEBACK=1 shows where it was raised)",
         file=sys.stderr,
     )
     raise SystemExit(USER_ERROR_STATUS)

@@ -19,7 +19,7 @@ import yaml
 from scanloc.bags.cli import parse_key_values
 from scanloc.bags.write import export_run
 from scanloc.sensor.simulate import laser_spec_from_config
-from scanloc.stages._app import conf_dir
+from scanloc.stages._app import conf_dir, reporting_user_errors
 
 DEFAULTS = {
     "run": "???",
@@ -50,4 +50,4 @@ def main(argv: Sequence[str] | None = None) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    reporting_user_errors("scanloc.stages.export_bag", main)()

@@ -20,6 +20,7 @@ from typing import Any
 from scanloc.bags.cli import parse_key_values
 from scanloc.bags.score import score_estimates
 from scanloc.evaluate.table2 import round_sig
+from scanloc.stages._app import reporting_user_errors
 
 DEFAULTS = {
     "run": "???",
@@ -58,4 +59,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    reporting_user_errors("scanloc.stages.score_estimates", main)()
