@@ -22,11 +22,9 @@ from scanloc.bags.cli import parse_key_values
 from scanloc.bags.errors import BagError
 from scanloc.bags.pairing import median_period_ns
 from scanloc.bags.topics import read_topics
+from scanloc.real.carmen_laser import NO_RETURN_FACTOR, default_no_return_value
 from scanloc.sensor.laser import LaserSpec
 
-# scanloc stores "no return" as a value above range_max; 1.25 x range_max as conf/sensor's
-# files have it (7.0 m for the URG-04LX's 5.6 m, 62.5 m for the SICK logs' 50 m).
-NO_RETURN_FACTOR = 1.25
 # A LaserScan's float32 ±π passes ±π by 8.7e-8 rad: clipped when within this.
 ANGLE_CLIP_RAD = 1e-6
 AUTO_EXTRAS = {"mode": "exact", "unknown_blocks": False}  # what a bag cannot say
@@ -59,7 +57,7 @@ def sensor_from_scans(
         "range_min": _float32(geometry["range_min"]),
         "range_max": range_max,
         "rate_hz": round(1e9 / period, 6) if period else LaserSpec().rate_hz,
-        "no_return_value": round(NO_RETURN_FACTOR * range_max, 6),
+        "no_return_value": round(default_no_return_value(range_max), 6),
     }
     try:
         LaserSpec(**sensor)
