@@ -245,8 +245,8 @@ def claim_verdicts(page: str) -> dict[int, str]:
     verdicts = {}
     for row in re.findall(r"<tr class=\"v-[a-z]+\">(.*?)</tr>", section):
         cells = re.findall(r"<td>(.*?)</td>", row)
-        if len(cells) == 6:  # the claims table (the legend has two columns)
-            verdicts[int(cells[0])] = cells[4]
+        if len(cells) == 8:  # the claims table (the legend has two columns)
+            verdicts[int(cells[0])] = cells[5]
     return verdicts
 
 
@@ -255,12 +255,14 @@ def test_report_content(built: Path) -> None:
     for text in ("1D CNN 200k paper", "×0.0024", "abc123", "train_mlp", "12.5"):
         assert text in page
     # The fabricated runs were made to give these verdicts: claim 5's 200k net is only 0.28
-    # better than the 20k one (not "markedly"), claim 7's CNN is 0.45 m behind amcl, not 0.075.
+    # better than the 20k one (not "markedly"), claim 7's CNN is 0.45 m behind amcl, not 0.075;
+    # claim 4's per-sample epoch-time ratio lies inside the range but within the cross-machine
+    # factor of a bound (conf/report.yaml timing_machine_factor), so another CPU could flip it.
     assert claim_verdicts(page) == {
         1: "reproduced",
         2: "reproduced",
         3: "reproduced",
-        4: "reproduced",
+        4: "inconclusive",
         5: "not reproduced",
         6: "reproduced",
         7: "direction only",
@@ -335,25 +337,27 @@ def test_each_claim_row_is_coloured_as_its_verdicts_legend_entry(built: Path) ->
     section = claims_section((built / "reports/report.html").read_text(encoding="utf-8"))
     legend = {row[0]: cls for cls, row in table_rows(section, 2)}
     assert len(legend) == 5 and len(set(legend.values())) == 5  # five verdicts, five colours
-    claims = table_rows(section, 6)
+    claims = table_rows(section, 8)
     assert len(claims) == 7
     for cls, row in claims:
-        assert legend[row[4]] == cls, row[0]
+        assert legend[row[5]] == cls, row[0]
 
 
 def test_a_measured_seed_spread_makes_close_margins_inconclusive(tmp_path: Path) -> None:
     root = make_artifacts(tmp_path)
     build(root, CONTEXT)
     smoke = (root / "reports/report.html").read_text(encoding="utf-8")
-    # At the smoke profile no spread is measured: the legend says so, no claim is inconclusive.
-    assert "no σ_seed is measured for profile &#x27;smoke&#x27;" in claims_section(smoke)
-    assert "inconclusive" not in claim_verdicts(smoke).values()
+    # At the smoke profile no seed spread is configured: the legend says so, and no margin
+    # between rows of one seed each is inconclusive (claim 4's is a timing ratio, see above).
+    assert "has no spread at profile &#x27;smoke&#x27;" in claims_section(smoke)
+    smoke_verdicts = claim_verdicts(smoke)
+    assert "inconclusive" not in [v for n, v in smoke_verdicts.items() if n != 4]
     headline = build(root, CONTEXT | {"profile": "laptop"})
     page = (root / "reports/report.html").read_text(encoding="utf-8")
     laptop = claims_section(page)
     sd = REPORT_CFG["seed_spread"]["laptop"]["val_mae_sd"]
-    band = REPORT_CFG["inconclusive_sigmas"] * sd * 2**0.5
-    assert f"· {sd:g} · √2 = {band:.2f}" in laptop
+    band = REPORT_CFG["inconclusive_sigmas"] * sd * 2**0.5  # two rows of one seed each
+    assert f"band ±{band:.2f}: one seed, the configured s.d. {sd:g}" in laptop
     # Claim 2's Δtrain 0.78 lies 0.08 from its 0.7, claim 5's margin 0.28 lies 0.12 from its
     # 0.4 and claim 6's map-2 margin 0.41 lies 0.41 from 0: all inside ±0.78. Claim 1's margins
     # (2.08, 2.36 against 0.4) and claim 3's (0.80 against 0) lie outside and keep their
@@ -362,13 +366,13 @@ def test_a_measured_seed_spread_makes_close_margins_inconclusive(tmp_path: Path)
         1: "reproduced",
         2: "inconclusive",
         3: "reproduced",
-        4: "reproduced",
+        4: "inconclusive",
         5: "inconclusive",
         6: "inconclusive",
         7: "direction only",
     }
-    assert headline["claims_inconclusive"] == 3 and headline["claims_reproduced"] == 3
-    assert "inconclusive: 2, 5, 6" in page  # the summary under the title
+    assert headline["claims_inconclusive"] == 4 and headline["claims_reproduced"] == 2
+    assert "inconclusive: 2, 4, 5, 6" in page  # the summary under the title
 
 
 # ---------------------------------------------------------------- the localizer catalog

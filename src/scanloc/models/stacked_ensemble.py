@@ -44,6 +44,7 @@ from scanloc.models.model_files import (
     build_model,
     count_parameters,
     dataset_model_cfg,
+    load_weights_,
     save_model,
 )
 from scanloc.models.pose_regressor import epoch_row, mae_loss, make_adam, pose_error_sums
@@ -222,8 +223,12 @@ def fit_stacked(
     trainer_cfg: Mapping[str, Any] | None = None,
     device: str | None = None,
     mode: Mode = "loop",
+    init_from: PathLike | None = None,
 ) -> list[dict[str, Any]]:
     """Train len(seeds) members of `model_cfg` together; member k writes into out_dirs[k].
+
+    init_from: a compatible model.pt every member starts from (transfer learning, as `fit`'s);
+    the members then differ only in their data order and dropout masks.
 
     trainer_cfg: conf/trainer/*.yaml; its accelerator picks the device (unless `device` is
     given), deterministic, matmul_precision and precision (32-true or bf16-mixed) apply.
@@ -243,7 +248,10 @@ def fit_stacked(
     models = []
     for seed in seeds:  # exactly fit's order: seed, then build (the init draws)
         L.seed_everything(seed, workers=True, verbose=False)
-        models.append(build_model(model_cfg))
+        model = build_model(model_cfg)
+        if init_from is not None:
+            load_weights_(model, init_from)
+        models.append(model)
         rng.capture()
     members = StackedMembers(models, target, mode, bf16)
     optimizer = make_adam(list(members.params.values()), lr)

@@ -20,7 +20,7 @@ from scanloc.evaluate.metrics import check_table
 from scanloc.evaluate.table2 import ordered_methods, read_timings
 from scanloc.hardware import MACHINE_KEYS, device_sentence
 from scanloc.io import read_json
-from scanloc.report.paper import PAPER_DRIVE, ROWS, TRANSFER
+from scanloc.report.paper import ENSEMBLE_SOURCE, PAPER_DRIVE, ROWS, TRANSFER
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.world.map_server import load_map
@@ -63,10 +63,20 @@ class TrainingRun:
     history: pd.DataFrame
     metrics: Mapping[str, Any]
     config: Mapping[str, Any]
+    # The row's further seeds trained in this run (models/<row>/seeds/<seed>/; for the 1D CNN
+    # 200k the ensemble's members, trained exactly like it): what its seed spread is taken over.
+    replicates: tuple[TrainingRun, ...] = ()
+
+    @property
+    def seeds(self) -> tuple[TrainingRun, ...]:
+        """This run and its replicates: one run per seed of the row."""
+        return (self, *self.replicates)
 
     @property
     def val_mae(self) -> float:
-        return as_float(self.metrics.get("val_mae"))
+        """Final epoch's validation MAE of this seed (the metrics file's `val_mae` is the
+        mean over the row's seeds)."""
+        return float(self.history["val_mae"].iloc[-1]) if len(self.history) else math.nan
 
     @property
     def train_mae(self) -> float:
@@ -108,24 +118,60 @@ def timing_path(name: str) -> Path:
     return TIMING_DIR / metrics_path(name).name
 
 
+def _history(path: Path) -> pd.DataFrame:
+    history = pd.read_csv(required(path, "per-epoch training history"))
+    missing = [c for c in ("epoch", "train_mae", "val_mae") if c not in history.columns]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {missing}")
+    return history
+
+
+# What makes two trainings replicates of one row: everything in config.json but the seed.
+REPLICATE_KEYS = (
+    "model",
+    "dataset",
+    "samples",
+    "epochs",
+    "batch_size",
+    "lr",
+    "lr_decay",
+    "dropout",
+)
+
+
+def _replicate(folder: Path, config: Mapping[str, Any]) -> TrainingRun:
+    """A further seed of a row: fit's files in `folder` (history.csv, metrics.json)."""
+    metrics = read_json(required(folder / "metrics.json", "a seed's final training metrics"))
+    return TrainingRun(_history(folder / "history.csv"), metrics, config)
+
+
+def load_replicates(root: Path, name: str, config: Mapping[str, Any]) -> tuple[TrainingRun, ...]:
+    """The row's further seeds: models/<name>/seeds/<seed>/, and for the 1D CNN 200k the
+    ensemble's members where the ensemble was trained exactly like it."""
+    folders = sorted((root / "models" / name / "seeds").glob("*/history.csv"))
+    if name == ENSEMBLE_SOURCE:
+        ensemble = root / "models" / "ensemble"
+        if (ensemble / "config.json").is_file():
+            members = read_json(ensemble / "config.json")
+            if all(members.get(k) == config.get(k) for k in REPLICATE_KEYS):
+                folders += sorted(ensemble.glob("member_*/history.csv"))
+    return tuple(_replicate(path.parent, config) for path in folders)
+
+
 def load_run(root: Path, name: str) -> TrainingRun | None:
-    """A run's history and config (models/<name>/) and final metrics (`metrics_path`), or None
-    if its model folder does not exist."""
+    """A run's history and config (models/<name>/), final metrics (`metrics_path`) and further
+    seeds (`load_replicates`), or None if its model folder does not exist."""
     folder = root / "models" / name
     if not folder.is_dir():
         return None
-    history_path = required(folder / "history.csv", "per-epoch training history")
-    history = pd.read_csv(history_path)
-    missing = [c for c in ("epoch", "train_mae", "val_mae") if c not in history.columns]
-    if missing:
-        raise ValueError(f"{history_path}: missing column(s) {missing}")
+    history = _history(folder / "history.csv")
     metrics = read_json(required(root / metrics_path(name), "final training metrics"))
     timing = root / timing_path(name)
     if timing.is_file():  # absent when the models came from elsewhere: epoch_s is then NaN
         figures = read_json(timing)
         metrics = {**metrics, **{k: figures[k] for k in MACHINE_KEYS if k in figures}}
     config = read_json(required(folder / "config.json", "training parameters as run"))
-    return TrainingRun(history, metrics, config)
+    return TrainingRun(history, metrics, config, load_replicates(root, name, config))
 
 
 def load_runs(root: Path) -> dict[str, TrainingRun]:

@@ -10,6 +10,7 @@ headline metrics (summary.py).
 
 from __future__ import annotations
 
+import statistics
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -88,7 +89,11 @@ def build_report(
         tmp.write_text(render_markdown(sections, TITLE, summary), encoding="utf-8")
     with atomic_path(out_dir / "report.html") as tmp:
         tmp.write_text(render_html(sections, TITLE, summary, b.figure_dir), encoding="utf-8")
-    table1 = {row: artifacts.runs[row].val_mae for row in ROWS if row in artifacts.runs}
+    table1 = {
+        row: statistics.fmean(r.val_mae for r in artifacts.runs[row].seeds)
+        for row in ROWS
+        if row in artifacts.runs
+    }
     return headline_metrics(
         table1,
         artifacts.localization,

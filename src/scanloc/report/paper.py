@@ -6,6 +6,8 @@ from __future__ import annotations
 
 # Table 1's rows (our experiment names) and the two transfer runs of §4.3, with their labels.
 ROWS = {"mlp": "MLP", "cnn1d_20k": "1D CNN 20k", "cnn1d_200k": "1D CNN 200k", "cnn2d": "2D CNN"}
+# The ensemble's member 0: its further members are trained exactly like this row.
+ENSEMBLE_SOURCE = "cnn1d_200k"
 TRANSFER = {"transfer/scratch": "random init", "transfer/pretrained": "pre-trained on map 1"}
 # The paper's maps, with the figure that shows each.
 MAPS = {"sparse_obstacles": "map 1 (paper Fig. 6)", "simple_rooms": "map 2 (paper Fig. 8)"}

@@ -33,6 +33,7 @@ def run_config(cfg: DictConfig) -> dict[str, Any]:
         "dropout": float(cfg.model.net.get("dropout", 0.0)),
         "seed": int(exp.seed),
         "members": int(exp.get("members", 1)),
+        "seeds": int(exp.get("seeds", 1)),
     }
 
 
@@ -42,6 +43,7 @@ def train(
     """Train what `cfg.experiment` describes into out_dir and return its metrics; its
     machine-dependent figures go into `machine` (the stage's timing file), not metrics_path."""
     # Imported here so that `--cfg job` and a sweep's parent process stay fast.
+    from scanloc.models.seed_replicates import train_further_seeds
     from scanloc.models.stacked_ensemble import fit_stacked
     from scanloc.models.training import fit
 
@@ -72,6 +74,14 @@ def train(
             checkpoint_dir=Path(cfg.checkpoint_dir),
             **common,
         )
+        if metrics:  # rank 0 of a DDP run, or the only process
+            metrics = train_further_seeds(
+                metrics=metrics,
+                out_dir=out_dir,
+                seed=int(exp.seed),
+                seeds=int(exp.get("seeds", 1)),
+                fit_kwargs={**common, "trainer_cfg": to_dict(cfg.trainer)},
+            )
     if metrics:  # empty on the non-zero ranks of a multi-process (DDP) run: rank 0 writes
         kept, figures = split_machine_figures(metrics)
         machine.update(figures)

@@ -16,7 +16,10 @@ def build(ctx: ReportContext, spec: SectionSpec) -> list[Section]:
             "and the verdict by the rule in the last column (its thresholds: "
             "conf/report.yaml). Our runs are scaled down by the profile (see Table 1), so "
             "numbers measured at a smaller scale are not expected to match the paper's; the "
-            "verdict says so rather than excusing it. Verdicts:"
+            "verdict says so rather than excusing it. 'margins and spread' gives each margin "
+            "the verdict rests on, its threshold and the band around it that the rows' seed "
+            "spread, measured in this run, sets; the last column, the scale at which the "
+            "`paper` profile tests the claim. Verdicts:"
         )
     )
     section.blocks.append(
@@ -26,9 +29,20 @@ def build(ctx: ReportContext, spec: SectionSpec) -> list[Section]:
             [VERDICT_CLASSES[name] for name in ctx.legend],
         )
     )
-    header = ["#", "paper's claim", "paper", "ours", "verdict", "rule"]
+    header = ["#", "paper's claim", "paper", "ours", "margins and spread", "verdict", "rule"]
+    header.append("scale of the paper profile")
     rows = [
-        [str(v.number), v.paper, v.paper_figure, v.ours, v.verdict, v.rule] for v in ctx.verdicts
+        [
+            str(v.number),
+            v.paper,
+            v.paper_figure,
+            v.ours,
+            "; ".join(c.text() for c in v.comparisons) or "–",
+            v.verdict,
+            v.rule,
+            v.paper_scale,
+        ]
+        for v in ctx.verdicts
     ]
     classes = [VERDICT_CLASSES[v.verdict] for v in ctx.verdicts]
     section.blocks.append(Table(header, rows, classes))

@@ -10,7 +10,7 @@ from scanloc.report.context import ReportContext, SectionSpec
 from scanloc.report.paper import ROWS, TRANSFER
 from scanloc.report.render import figures
 from scanloc.report.render.document import Para, Section, Table
-from scanloc.report.render.tables import num
+from scanloc.report.render.tables import num, seed_summary
 
 
 def run_table(runs: Mapping[str, TrainingRun], names: Mapping[str, str]) -> Table:
@@ -19,6 +19,7 @@ def run_table(runs: Mapping[str, TrainingRun], names: Mapping[str, str]) -> Tabl
         "model",
         "final train MAE",
         "final val. MAE",
+        "final val. MAE over its seeds",
         "best val. MAE",
         "val. position error [m]",
         "val. heading error [°]",
@@ -37,7 +38,8 @@ def run_table(runs: Mapping[str, TrainingRun], names: Mapping[str, str]) -> Tabl
                 label,
                 num(run.train_mae),
                 num(run.val_mae),
-                num(run.metrics.get("best_val_mae")),
+                seed_summary([r.val_mae for r in run.seeds]),
+                num(float(run.history["val_mae"].min()) if len(run.history) else None),
                 num(last.get("val_pos_err_m")),
                 num(last.get("val_heading_err_deg")),
                 num(run.metrics.get("epoch_s"), 3),
