@@ -91,6 +91,12 @@ def _seeds(*vals: float, **kwargs) -> TrainingRun:
     return _run(first, replicates=[_run(v, **kwargs) for v in rest], **kwargs)
 
 
+def _cnn2d(val: float, train: float | None = None, **kwargs) -> TrainingRun:
+    """A 2D CNN run that saw the paper's share of the 1D CNN 20k's training scans (8 M of 100 M:
+    1,600 against `_run`'s 20,000), so that claim 2 tests it."""
+    return _run(val, train, samples=1600, **kwargs)
+
+
 def _inputs(runs: dict, metrics: dict | None = None) -> SimpleNamespace:
     return SimpleNamespace(runs=runs, paper_metrics=metrics or {})
 
@@ -144,14 +150,14 @@ def test_claim_1_needs_a_clear_margin_and_the_mlps_number() -> None:
 
 def test_claim_2_compares_with_the_1d_cnn_on_the_same_data() -> None:
     runs = {"cnn1d_20k": _run(0.4), "cnn1d_200k": _run(2.0)}
-    assert _claim(2, runs | {"cnn2d": _run(0.95, train=1.2)}).verdict == REPRODUCED
-    assert _claim(2, runs | {"cnn2d": _run(0.6, train=0.6)}).verdict == DIRECTION_ONLY
+    assert _claim(2, runs | {"cnn2d": _cnn2d(0.95, train=1.2)}).verdict == REPRODUCED
+    assert _claim(2, runs | {"cnn2d": _cnn2d(0.6, train=0.6)}).verdict == DIRECTION_ONLY
     # Worse than the 200k net but better than the 20k one: the 20k one is the comparison.
-    assert _claim(2, runs | {"cnn2d": _run(0.3)}).verdict == NOT_REPRODUCED
+    assert _claim(2, runs | {"cnn2d": _cnn2d(0.3)}).verdict == NOT_REPRODUCED
     # The training gap alone failing the direction is enough.
-    assert _claim(2, runs | {"cnn2d": _run(1.5, train=0.3)}).verdict == NOT_REPRODUCED
-    assert _claim(2, {"cnn2d": _run(1.0), "cnn1d_200k": _run(0.1)}).verdict == NOT_TESTABLE
-    assert _claim(2, runs | {"cnn2d": _run(1.0, train=math.nan)}).verdict == NOT_TESTABLE
+    assert _claim(2, runs | {"cnn2d": _cnn2d(1.5, train=0.3)}).verdict == NOT_REPRODUCED
+    assert _claim(2, {"cnn2d": _cnn2d(1.0), "cnn1d_200k": _run(0.1)}).verdict == NOT_TESTABLE
+    assert _claim(2, runs | {"cnn2d": _cnn2d(1.0, train=math.nan)}).verdict == NOT_TESTABLE
 
 
 def test_claim_3_tests_the_papers_epoch_time_ratio_and_names_the_device() -> None:
@@ -467,10 +473,10 @@ def test_claim_1_margin_inside_the_spread_is_inconclusive() -> None:
 
 def test_claims_2_5_6_use_the_spread_for_their_margins() -> None:
     runs = {"cnn1d_20k": _run(0.4), "cnn1d_200k": _run(2.0)}
-    near_gap = runs | {"cnn2d": _run(0.4 + 0.55, train=0.4 + 1.5)}  # Δval 0.55 against 0.5
+    near_gap = runs | {"cnn2d": _cnn2d(0.4 + 0.55, train=0.4 + 1.5)}  # Δval 0.55 against 0.5
     assert _claim(2, near_gap).verdict == REPRODUCED
     assert _claim(2, near_gap, config=LAPTOP).verdict == INCONCLUSIVE
-    wide = runs | {"cnn2d": _run(0.4 + 1.5, train=0.4 + 1.6)}
+    wide = runs | {"cnn2d": _cnn2d(0.4 + 1.5, train=0.4 + 1.6)}
     assert _claim(2, wide, config=LAPTOP).verdict == REPRODUCED
     small = _run(0.6)
     near = {"cnn1d_20k": small, "cnn1d_200k": _run(0.15, 0.14)}  # a margin of 0.45 against 0.4
@@ -542,3 +548,20 @@ def test_the_legend_states_where_the_spread_comes_from() -> None:
     assert "0.276" in verdict_legend(LAPTOP)[INCONCLUSIVE]
     paper = verdict_legend(ClaimConfig.from_config(REPORT_CFG, "paper"))[INCONCLUSIVE]
     assert "no spread at profile 'paper'" in paper and "0.276" not in paper
+
+
+def test_claims_1_and_5_are_not_tested_on_unequal_training() -> None:
+    """The paper's 20k and 200k nets saw about as many training scans (100 M and 80 M); a
+    200k net that saw a tenth of the 20k one's would lose for training time, not data."""
+    mlp, small = _run(2.5), _run(0.4, curve=[2.0] * 9 + [0.4], samples=20000)
+    equal = _run(0.15, 0.14, samples=200000)  # 1 epoch of 200k vs 10 of 20k: 1.0 vs 1.25
+    short = _run(2.9, curve=[2.9], samples=20000)  # 20k scans seen against 200k: 0.1
+    assert _claim(1, {"mlp": mlp, "cnn1d_20k": small, "cnn1d_200k": equal}).verdict == REPRODUCED
+    for number in (1, 5):
+        claim = _claim(number, {"mlp": mlp, "cnn1d_20k": small, "cnn1d_200k": short})
+        assert claim.verdict == NOT_TESTABLE, number
+        assert "not tested at this profile" in claim.ours and "ratio 0.1 " in claim.ours
+    # The 2D CNN: the paper's saw 8 % of the 1D CNN's training scans; one that saw as many as
+    # the 1D CNN is not the paper's comparison either.
+    as_long = _claim(2, {"cnn1d_20k": _run(0.4), "cnn2d": _run(1.5)})
+    assert as_long.verdict == NOT_TESTABLE and "ratio 1 " in as_long.ours

@@ -62,12 +62,14 @@ def _write_json(path: Path, obj) -> None:
     path.write_text(json.dumps(obj))
 
 
-def _run(root: Path, name: str, start: float, end: float, samples: int, epoch_s: float):
-    """A training run whose MAE decays from `start` to `end` over 12 epochs."""
-    folder, epochs = root / "models" / name, 12
+def _run(
+    root: Path, name: str, start: float, end: float, samples: int, epoch_s: float, epochs: int = 12
+):
+    """A training run whose MAE decays from `start` to `end` over `epochs` epochs."""
+    folder = root / "models" / name
     folder.mkdir(parents=True)
     epoch = np.arange(1, epochs + 1)
-    val = end + (start - end) * np.exp(-epoch / 3)
+    val = end + (start - end) * np.exp(-4 * epoch / epochs)
     history = pd.DataFrame({"epoch": epoch, "train_mae": val * 0.97, "val_mae": val})
     history["val_pos_err_m"], history["val_heading_err_deg"] = val * 0.8, val * 20
     history["lr"] = 0.006
@@ -117,16 +119,19 @@ def make_artifacts(root: Path) -> Path:
             folder / "meta.json",
             {"name": name, "map": {"name": map_name}, "count": 12, "seed": 1, "sensor": SENSOR},
         )
-    for row, (start, end, samples) in {
-        "mlp": (4.0, 2.5, 20000),
-        "cnn1d_20k": (3.0, 0.4, 20000),
-        "cnn1d_200k": (3.0, 0.12, 200000),
-        "cnn2d": (4.0, 1.2, 20000),
-        "transfer/scratch": (4.0, 0.8, 20000),
-        "transfer/pretrained": (2.0, 0.6, 20000),
+    # The 200k net and the 2D CNN train one epoch: 200,000 and 20,000 training scans seen
+    # against the 20k net's 240,000, the paper's ratios (0.8, 0.08) within ×/÷ 2 (claims 1, 2
+    # and 5 are not tested on training unlike the paper's).
+    for row, (start, end, samples, epochs) in {
+        "mlp": (4.0, 2.5, 20000, 12),
+        "cnn1d_20k": (3.0, 0.4, 20000, 12),
+        "cnn1d_200k": (3.0, 0.12, 200000, 1),
+        "cnn2d": (4.0, 1.2, 20000, 1),
+        "transfer/scratch": (4.0, 0.8, 20000, 12),
+        "transfer/pretrained": (2.0, 0.6, 20000, 12),
     }.items():
         epoch_s = samples / 4000 * (12 if row == "cnn2d" else 1)
-        _run(root, row, start, end, samples, epoch_s)
+        _run(root, row, start, end, samples, epoch_s, epochs)
     steps = 60
     phase = np.linspace(0, 2 * np.pi, steps)
     truth = np.column_stack([3 + 1.5 * np.cos(phase), 2.5 + 1.5 * np.sin(phase), phase + np.pi / 2])

@@ -101,12 +101,14 @@ class Claim:
         )
 
     def untestable(self, what: list[str], rule: str) -> Verdict:
-        missing = f"missing: {', '.join(what)}"
+        return self.not_tested(f"missing: {', '.join(what)}", rule)
+
+    def not_tested(self, why: str, rule: str) -> Verdict:
         return Verdict(
             self.number,
             self.text,
             self.paper_figure,
-            missing,
+            why,
             NOT_TESTABLE,
             rule,
             (),
@@ -132,14 +134,47 @@ def _train(run: TrainingRun) -> list[float]:
     return [r.train_mae for r in run.seeds]
 
 
+# The scans each row saw in training (samples × epochs) in the paper, relative to the 1D CNN
+# 20k's 5000 × 20k = 100 M: the 200k net 400 × 200k = 80 M, the 2D CNN 400 × 20k = 8 M. About
+# 7 hours of training each on the paper's GPU: rows compared after equal training time.
+PAPER_SEEN = {"cnn1d_20k": 20000 * 5000, "cnn1d_200k": 200000 * 400, "cnn2d": 20000 * 400}
+
+
+def unequal_training(
+    reference: TrainingRun, other: TrainingRun, other_name: str, t: Mapping
+) -> str | None:
+    """Why a row cannot be compared with the 1D CNN 20k at this profile: the scans each saw in
+    training (samples × epochs) stand in a ratio more than `seen_ratio_factor` from the
+    paper's, so a margin between them would measure how long each trained rather than what
+    the claim is about. None: comparable."""
+    ours = (other.samples * other.epochs) / max(reference.samples * reference.epochs, 1)
+    paper = PAPER_SEEN[other_name] / PAPER_SEEN["cnn1d_20k"]
+    factor = t["seen_ratio_factor"]
+    if paper / factor <= ours <= paper * factor:
+        return None
+    return (
+        f"not tested at this profile: the 1D CNN 20k saw {reference.samples * reference.epochs:,}"
+        f" scans in training ({reference.epochs} epochs) and the {other_name} "
+        f"{other.samples * other.epochs:,} ({other.epochs} epochs), a ratio {ours:.3g} against "
+        f"the paper's {paper:.3g} (accepted within ×/÷ {factor:g}): a margin would measure "
+        "training time; the desk and paper profiles test it"
+    )
+
+
 def mlp_vs_cnns(claim: Claim, inputs: ClaimInputs, t: Mapping, config: ClaimConfig):
     rule = (
         f"Direction: each 1D CNN's final validation MAE (mean over its seeds) is at least "
         f"{t['min_margin']} below the MLP's ('clearly'). Number: the MLP's final validation MAE "
-        f"within ±{t['mlp_tolerance']} of {t['mlp_val_mae']}."
+        f"within ±{t['mlp_tolerance']} of {t['mlp_val_mae']}. Tested only where the two 1D "
+        f"CNNs saw as many training scans as the paper's (100 M and 80 M, within ×/÷ "
+        f"{t['seen_ratio_factor']})."
     )
     if missing := _missing(inputs, ("mlp", "cnn1d_20k", "cnn1d_200k")):
         return claim.untestable(missing, rule)
+    if why := unequal_training(
+        inputs.runs["cnn1d_20k"], inputs.runs["cnn1d_200k"], "cnn1d_200k", t
+    ):
+        return claim.not_tested(why, rule)
     mlp, small, large = (_val(inputs.runs[n]) for n in ("mlp", "cnn1d_20k", "cnn1d_200k"))
     if not _finite(*mlp, *small, *large):
         return claim.untestable(["a final val_mae"], rule)
@@ -160,11 +195,15 @@ def cnn1d_vs_cnn2d(claim: Claim, inputs: ClaimInputs, t: Mapping, config: ClaimC
     rule = (
         "Δ = 2D CNN − 1D CNN 20k (both on the same 20k-row data), final training and "
         "validation MAE, means over seeds. Direction: Δtrain > 0 and Δval > 0. Number: Δtrain "
-        f"≥ {t['min_train_gap']} and Δval ≥ {t['min_val_gap']} (the paper's 'at least')."
+        f"≥ {t['min_train_gap']} and Δval ≥ {t['min_val_gap']} (the paper's 'at least'). "
+        "Tested only where the 2D CNN saw about as large a share of the 1D CNN's training "
+        f"scans as in the paper (8 M of 100 M, within ×/÷ {t['seen_ratio_factor']})."
     )
     if missing := _missing(inputs, ("cnn2d", "cnn1d_20k")):
         return claim.untestable(missing, rule)
     cnn2d, cnn1d = inputs.runs["cnn2d"], inputs.runs["cnn1d_20k"]
+    if why := unequal_training(cnn1d, cnn2d, "cnn2d", t):
+        return claim.not_tested(why, rule)
     if not _finite(*_val(cnn2d), *_val(cnn1d), *_train(cnn2d), *_train(cnn1d)):
         return claim.untestable(["a final train_mae or val_mae"], rule)
 
@@ -181,11 +220,10 @@ def cnn1d_vs_cnn2d(claim: Claim, inputs: ClaimInputs, t: Mapping, config: ClaimC
         f"{seed_summary(_val(cnn2d))}, 1D CNN 20k {seed_summary(_train(cnn1d))} / "
         f"{seed_summary(_val(cnn1d))}"
     )
-    if cnn2d.epochs != cnn1d.epochs or cnn2d.samples != cnn1d.samples:
-        ours += (
-            f"; the 2D CNN after {cnn2d.epochs} epochs on {cnn2d.samples} samples, the 1D CNN "
-            f"after {cnn1d.epochs} on {cnn1d.samples} (the profile's scale, Table 1)"
-        )
+    ours += (
+        f"; the 2D CNN after {cnn2d.epochs} epochs on {cnn2d.samples} samples, the 1D CNN "
+        f"after {cnn1d.epochs} on {cnn1d.samples}"
+    )
     result = verdict(all_of(c.outcome for c in direction), [c.outcome for c in sizes])
     return claim.result(ours, result, rule, [*direction, *sizes])
 
@@ -254,11 +292,14 @@ def more_data(claim: Claim, inputs: ClaimInputs, t: Mapping, config: ClaimConfig
         f"Direction ('markedly'): the 200k 1D CNN's final validation MAE is at least "
         f"{t['min_margin']} below the 20k one's (means over seeds). Numbers: its validation MAE "
         f"within ±{t['val_tolerance']} of {t['val_mae']} and its |val − train| gap within "
-        f"±{t['gap_tolerance']} of {t['gap']}."
+        f"±{t['gap_tolerance']} of {t['gap']}. Tested only where the two saw as many training "
+        f"scans as the paper's did (within ×/÷ {t['seen_ratio_factor']})."
     )
     if missing := _missing(inputs, ("cnn1d_20k", "cnn1d_200k")):
         return claim.untestable(missing, rule)
     small, large = inputs.runs["cnn1d_20k"], inputs.runs["cnn1d_200k"]
+    if why := unequal_training(small, large, "cnn1d_200k", t):
+        return claim.not_tested(why, rule)
     gaps = [abs(r.val_mae - r.train_mae) for r in large.seeds]
     if not _finite(*_val(small), *_val(large), *gaps):
         return claim.untestable(["a final val_mae or train_mae"], rule)
