@@ -31,9 +31,10 @@ import argparse
 import json
 import math
 import statistics
+import tempfile
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +45,7 @@ from omegaconf import OmegaConf
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 OUT = ROOT / "runs" / "claim_power"
+SYNTHETIC: Path | None = None  # --quick: every row trains on this tiny synthetic dataset
 
 
 @dataclass(frozen=True)
@@ -356,7 +358,7 @@ def train_row(row: StudyRow, seeds: int, precision: str) -> None:
     start = time.perf_counter()
     fit_stacked(
         model_cfg=cfg["model"]["net"],
-        dataset_dir=ROOT / cfg["dataset_dir"],
+        dataset_dir=SYNTHETIC or ROOT / cfg["dataset_dir"],
         out_dirs=[row_dir(precision, row.name, s) for s in todo],
         seeds=todo,
         epochs=row.epochs,
@@ -375,13 +377,36 @@ def train_row(row: StudyRow, seeds: int, precision: str) -> None:
     print(f"{row.name}: seeds {todo}, {row.epochs} epochs, {seconds:.0f} s", flush=True)
 
 
+def quick(tmp: Path, args: argparse.Namespace) -> None:
+    """Every row 4 epochs of 300 synthetic scans, into `tmp`: checks the study runs end to end."""
+    from train_throughput import logging_off, write_synthetic_dataset
+
+    global OUT, ROWS, SYNTHETIC
+    logging_off()
+    OUT, SYNTHETIC = tmp / "runs", write_synthetic_dataset(tmp / "scans", 300)
+    ROWS = tuple(replace(row, epochs=4, samples=300) for row in ROWS)
+    for row in ROWS:
+        train_row(row, args.seeds, args.precision)
+    print(json.dumps(analyse(args.precision, args.seeds)))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--precision", default="32-true", choices=["32-true", "bf16-mixed"])
     parser.add_argument("--analyse", action="store_true", help="analyse recorded histories only")
     parser.add_argument("--rows", nargs="*", default=[r.name for r in ROWS])
+    parser.add_argument("--quick", action="store_true", help="tiny synthetic smoke run")
+    parser.add_argument("--threads", type=int, default=None)
     args = parser.parse_args()
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    if args.quick:
+        with tempfile.TemporaryDirectory(prefix="scanloc-claim-power-") as tmp:
+            quick(Path(tmp), args)
+        return
     if not args.analyse:
         from train_throughput import logging_off
 

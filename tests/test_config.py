@@ -28,7 +28,7 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = REPO_ROOT / "conf"
 STAGES_DIR = REPO_ROOT / "src" / "scanloc" / "stages"
 
-PROFILES = ("smoke", "laptop", "paper")
+PROFILES = ("smoke", "laptop", "desk", "paper")
 TRAINERS = ("cpu", "gpu", "ddp")
 ODOMETRY = ("wheel", "laser")  # the odometry sources of the localize stages
 ROWS = ("mlp", "cnn1d_20k", "cnn1d_200k", "cnn2d")

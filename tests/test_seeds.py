@@ -13,7 +13,7 @@ from omegaconf import OmegaConf
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
-PROFILES = ("smoke", "laptop", "paper")
+PROFILES = ("smoke", "laptop", "desk", "paper")
 
 
 def _runs() -> list[str]:
