@@ -49,6 +49,7 @@ def test_quick_run_prints_figures(
         assert figures["max_param_diff"] == 0.0  # the loop mode reproduces lone training exactly
 
 
+@pytest.mark.slow  # 18 trainings, the 2D CNN's among them: about a minute
 def test_claim_power_quick_run_covers_every_row_and_claim(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
 ) -> None:

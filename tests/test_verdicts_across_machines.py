@@ -25,7 +25,7 @@ FINAL_VAL_MAE = {
 }
 # Per-sample epoch-time ratios of the laptop rows on two CPU classes (conf/report.yaml
 # `timing_machine_factor`): the 2D / 1D CNN (claim 3) and the 1D CNN at batch 400 / 100 (claim 4).
-TIMING_RATIOS = {"avx2 float32": {3: 15.7, 4: 0.90}, "avx512_bf16 bf16": {3: 21.4, 4: 0.74}}
+TIMING_RATIOS = {"avx2 float32": {3: 9.86, 4: 0.88}, "avx512_bf16 bf16": {3: 21.6, 4: 0.74}}
 
 
 def _agree(outcomes: list) -> bool:
