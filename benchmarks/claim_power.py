@@ -9,14 +9,15 @@ that seed would). Because the learning-rate schedule and the data order depend o
 update count and the epoch, epoch e of a longer run *is* a run of e epochs, so one training per
 row gives every epoch scale up to its length.
 
-Then, per claim and scale, the claim's margins as the report's rule computes them
-(scanloc.report.claims: the seeds' mean of each row, the band `inconclusive_sigmas` ·
-sqrt(sd_a² + sd_b²) from the seeds' spread), the ratio z = |margin − threshold| / band (the
-claim is decidable at a scale where every margin it rests on has z ≥ 1), the training cost of
-the scale (the rows' seeds × samples × epochs at the measured seconds per sample), and a fit of
-each margin and band against the epochs (margin linear in log epochs, band a power law) that
-says from which scale on the claim would be decidable beyond the epochs trained. The scale is
-chosen by the ratio alone, never by the verdict it gives.
+Then, per claim and scale, the claim's verdict and margins by the report's own rule
+(scanloc.report.claims: the seeds' mean of each row; the band, the Student-t quantile at
+Welch's degrees of freedom × sqrt(sd_a² + sd_b²)), the smallest ratio z = |margin − threshold| /
+band over its comparisons, whether the rule decides it there (a verdict neither inconclusive
+nor untested), the training cost of the scale (the rows' seeds × samples × epochs at the
+measured seconds per scan), and a fit of each row's mean validation MAE (a power law of the
+epochs; none for a row still on its plateau) and its s.d. (a constant share of the mean) that
+predicts the ratio beyond the epochs trained. A profile's scale is chosen by decidability and
+cost, never by the verdict it gives.
 
     python benchmarks/claim_power.py            # train what is missing, then analyse
     python benchmarks/claim_power.py --analyse  # analyse the recorded histories only
@@ -105,6 +106,8 @@ CLAIM_ROWS = {
     6: ("transfer_scratch", "transfer_pretrained", "cnn1d_20k"),
 }
 RUN_NAMES = {"transfer_scratch": "transfer/scratch", "transfer_pretrained": "transfer/pretrained"}
+TIED = ("transfer_scratch", "transfer_pretrained")  # rows that always train the same epochs
+MIN_FALL = 0.05  # a row whose mean fell less than this share over its fitted epochs: no fit
 GRID_POINTS = 4  # epochs per row: its study length × 1/4, 2/4, 3/4, 4/4
 
 
@@ -190,7 +193,7 @@ def evaluate(number: int, rows: Mapping[str, RowCurves], scale: Mapping[str, int
     return CLAIMS[number - 1].evaluate(_Inputs(runs), config)
 
 
-def fit_curve(row: RowCurves) -> dict:
+def fit_curve(row: RowCurves) -> dict | None:
     """The mean validation MAE a power law of the epochs, and its seed s.d. a constant share of
     the mean (the RMS of sd / mean), both over the second half of the row's epochs (past the
     first plateau). Three seeds give an s.d. that jumps from epoch to epoch (0.03 to 0.14 for
@@ -198,6 +201,8 @@ def fit_curve(row: RowCurves) -> dict:
     spread shrink only as the error does."""
     epochs = np.arange(max(2, row.epochs // 2), row.epochs + 1)
     stats = np.array([row.mean_sd(int(e)) for e in epochs])
+    if stats[-1, 0] > (1 - MIN_FALL) * stats[0, 0]:
+        return None  # still on a plateau: a power law through it would extrapolate nothing
     mean_fit = np.polyfit(np.log(epochs), np.log(stats[:, 0]), 1)
     cv = float(np.sqrt(np.mean((stats[:, 1] / stats[:, 0]) ** 2)))
     return {
@@ -261,7 +266,7 @@ def predicted_ratio(fits: Mapping, pairs, epochs: Mapping[str, float], seeds: in
 
 def predictions(rows: Mapping[str, RowCurves], seeds: int, sigmas: float) -> dict:
     """Per claim: the predicted ratio at each scale (3 and 5 seeds) and its training cost."""
-    fits = {n: fit_curve(r) for n, r in rows.items() if r.epochs >= 4}
+    fits = {n: fit for n, r in rows.items() if r.epochs >= 4 and (fit := fit_curve(r))}
     out = {}
     for number, pairs in PREDICTED_MARGINS.items():
         names = {n for pair in pairs for n in pair[:2]}
@@ -304,6 +309,8 @@ def analyse(precision: str, seeds: int) -> dict:
         scales = []
         for combo in itertools.product(*(rows[n].grid() for n in names)):
             scale = dict(zip(names, combo, strict=True))
+            if len({scale[n] for n in TIED if n in scale}) > 1:
+                continue  # the transfer stage trains both inits for the same epochs
             v = evaluate(number, rows, scale, config)
             ratios = [c.ratio for c in v.comparisons]
             scales.append(
@@ -318,7 +325,9 @@ def analyse(precision: str, seeds: int) -> dict:
                     "verdict": v.verdict,
                 }
             )
-        decidable = [s for s in scales if s["ratio"] is not None and s["ratio"] >= 1]
+        # Decided as the report decides: a verdict that is neither inconclusive nor untested
+        # (one comparison decisively False decides, whatever the others' ratios).
+        decidable = [s for s in scales if s["verdict"] not in ("inconclusive", "not testable")]
         chosen = min(decidable, key=lambda s: s["cost_s"]) if decidable else None
         result["claims"][number] = {
             "rows": names,

@@ -570,3 +570,16 @@ def test_claims_1_and_5_are_not_tested_on_unequal_training() -> None:
     # the 1D CNN is not the paper's comparison either.
     as_long = _claim(2, {"cnn1d_20k": _run(0.4), "cnn2d": _run(1.5)})
     assert as_long.verdict == NOT_TESTABLE and "ratio 1 " in as_long.ours
+
+
+def test_the_cross_machine_factor_applies_to_cpu_trainings_only() -> None:
+    """It was measured between CPU classes: runs trained on a GPU are judged by the range."""
+    gpu = {"type": "cuda", "name": "Test GPU", "cores": 1}
+    near = 125.0  # 25x per sample against the accepted 8-30x: within the factor of 30
+    on_cpu = {"cnn1d_20k": _run(0.4, epoch_s=5.0), "cnn2d": _run(1.0, epoch_s=near)}
+    on_gpu = {
+        "cnn1d_20k": _run(0.4, epoch_s=5.0, device=gpu),
+        "cnn2d": _run(1.0, epoch_s=near, device=gpu),
+    }
+    assert _claim(3, on_cpu).verdict == INCONCLUSIVE
+    assert _claim(3, on_gpu).verdict == REPRODUCED

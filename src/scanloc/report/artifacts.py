@@ -152,8 +152,10 @@ def load_replicates(root: Path, name: str, config: Mapping[str, Any]) -> tuple[T
     if name == ENSEMBLE_SOURCE:
         ensemble = root / "models" / "ensemble"
         if (ensemble / "config.json").is_file():
-            members = read_json(ensemble / "config.json")
-            if all(members.get(k) == config.get(k) for k in REPLICATE_KEYS):
+            ensemble_config = read_json(ensemble / "config.json")
+            # Member k is seed + k: the same base seed, or a member may repeat the row itself.
+            alike = ("seed", *REPLICATE_KEYS)
+            if all(ensemble_config.get(k) == config.get(k) for k in alike):
                 folders += sorted(ensemble.glob("member_*/history.csv"))
     return tuple(_replicate(path.parent, config) for path in folders)
 

@@ -10,14 +10,13 @@ headline metrics (summary.py).
 
 from __future__ import annotations
 
-import statistics
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from scanloc.io import atomic_path
 from scanloc.localize.catalog import CONF_DIR
-from scanloc.report.artifacts import Artifacts, total_stage_seconds
+from scanloc.report.artifacts import Artifacts, as_float, total_stage_seconds
 from scanloc.report.claims import Verdict, check_claims
 from scanloc.report.context import ReportContext
 from scanloc.report.localizers import Localizers
@@ -89,8 +88,10 @@ def build_report(
         tmp.write_text(render_markdown(sections, TITLE, summary), encoding="utf-8")
     with atomic_path(out_dir / "report.html") as tmp:
         tmp.write_text(render_html(sections, TITLE, summary, b.figure_dir), encoding="utf-8")
+    # The metrics file's val_mae: the mean over the row's own seeds (one seed at the laptop
+    # profile), as compare reads it for experiments that only train.
     table1 = {
-        row: statistics.fmean(r.val_mae for r in artifacts.runs[row].seeds)
+        row: as_float(artifacts.runs[row].metrics.get("val_mae"))
         for row in ROWS
         if row in artifacts.runs
     }

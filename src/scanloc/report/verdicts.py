@@ -159,9 +159,14 @@ class ClaimConfig:
             machine_source = str(timing["source"])
         return cls(cfg["claims"], sigmas, sd, source, profile, machine, machine_source)
 
-    def ratio_check(self, label: str, value: float, lo: float, hi: float) -> RatioCheck:
-        """`value` in [lo, hi], a timing ratio, with this config's cross-machine factor."""
-        return RatioCheck(label, value, lo, hi, self.machine_factor, self.machine_source)
+    def ratio_check(
+        self, label: str, value: float, lo: float, hi: float, on_cpu: bool = True
+    ) -> RatioCheck:
+        """`value` in [lo, hi], a timing ratio, with this config's cross-machine factor where
+        the runs trained on CPUs (the factor was measured between CPU classes; on a GPU the
+        range alone decides)."""
+        machine = self.machine_factor if on_cpu else None
+        return RatioCheck(label, value, lo, hi, machine, self.machine_source)
 
     def row_sd(self, values: Sequence[float]) -> tuple[float | None, int | None, str]:
         """A row's seed-to-seed s.d., the degrees of freedom of that estimate (None: a
@@ -185,11 +190,13 @@ class ClaimConfig:
     ) -> Comparison:
         """mean(a) − mean(b) against `threshold`, a and b being two rows' per-seed values.
 
-        band = k · sqrt(sd_a² + sd_b²): the spread of the difference of two single runs, not of
-        the means, so that the verdict holds for any one seed of each row, on another machine
-        too. k is `sigmas` where both s.d. are configured; where one is estimated from a few
-        seeds, k is the Student-t quantile of the same two-sided level with Welch's degrees of
-        freedom (3 seeds estimate an s.d. poorly: with 2 degrees of freedom k is about 4.5)."""
+        band = k · sqrt(sd_a² + sd_b²): the spread of the difference of two single runs, wider
+        than that of the means (by √n), so that the verdict is unlikely to flip with another
+        draw of seeds, or on another machine whose precision moves a run by about a seed's
+        spread (docs/benchmarks.md "Precision"). k is `sigmas` where both s.d. are configured;
+        where one is estimated from a few seeds, k is the Student-t quantile of the same
+        two-sided level with Welch's degrees of freedom (3 seeds estimate an s.d. poorly: with
+        2 degrees of freedom k is about 4.5)."""
         value = statistics.fmean(a) - statistics.fmean(b) if a and b else math.nan
         (sd_a, dof_a, why_a), (sd_b, dof_b, why_b) = self.row_sd(a), self.row_sd(b)
         if sd_a is None or sd_b is None:
@@ -267,9 +274,9 @@ def verdict_legend(config: ClaimConfig) -> dict[str, str]:
     )
     if config.machine_factor is not None:
         rule += (
-            f". An epoch-time ratio (claims 3, 4) depends on the machine, not the seed: one "
-            f"within ×/÷ {config.machine_factor:g} of a bound of its range cannot tell "
-            f"({config.machine_source})"
+            f". An epoch-time ratio (claims 3, 4) of runs trained on CPUs depends on the CPU "
+            f"class, not the seed: one within ×/÷ {config.machine_factor:g} of a bound of its "
+            f"range cannot tell ({config.machine_source})"
         )
     return {
         REPRODUCED: "the direction holds and every number the paper gives lies within the "
@@ -279,5 +286,7 @@ def verdict_legend(config: ClaimConfig) -> dict[str, str]:
         NOT_REPRODUCED: "the direction does not hold",
         INCONCLUSIVE: "a margin between two training rows that the verdict rests on lies so "
         f"close to its threshold that it is inside their seed-to-seed spread: {rule}",
-        NOT_TESTABLE: "an artifact or metric the rule needs is missing",
+        NOT_TESTABLE: "an artifact or metric the rule needs is missing, or the profile trains "
+        "the compared rows in other proportions than the paper did (the 'ours' column says "
+        "which)",
     }

@@ -17,10 +17,10 @@ def run_table(runs: Mapping[str, TrainingRun], names: Mapping[str, str]) -> Tabl
     """One row per run of `names` that exists: its final and best MAE, errors and speed."""
     header = [
         "model",
-        "final train MAE",
-        "final val. MAE",
+        "final train MAE (first seed)",
+        "final val. MAE (first seed)",
         "final val. MAE over its seeds",
-        "best val. MAE",
+        "best val. MAE (first seed)",
         "val. position error [m]",
         "val. heading error [°]",
         "s / epoch",
