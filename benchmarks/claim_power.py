@@ -161,10 +161,9 @@ def load_rows(precision: str, seeds: int) -> dict[str, RowCurves]:
         cost_path = OUT / precision / row.name / "cost.json"
         if any(h is None for h in found) or not cost_path.is_file():
             continue
-        samples = int(row.samples or run["samples"])
-        config = {"samples": samples, "batch_size": int(run["batch_size"])}
-        cost = json.loads(cost_path.read_text())["s_per_sample_epoch"]
-        rows[row.name] = RowCurves(row.name, found, config, cost)
+        cost = json.loads(cost_path.read_text())  # as trained, whatever the config says now
+        config = {"samples": int(cost["samples"]), "batch_size": int(run["batch_size"])}
+        rows[row.name] = RowCurves(row.name, found, config, cost["s_per_sample_epoch"])
     return rows
 
 
@@ -277,7 +276,7 @@ def predictions(rows: Mapping[str, RowCurves], seeds: int, sigmas: float) -> dic
         for epochs_20k in PREDICTED_EPOCHS_20K:
             epochs = row_epochs(rows, epochs_20k)
             row = {"epochs": {n: round(epochs[n], 1) for n in sorted(names)}}
-            for n_seeds in (seeds, 5):
+            for n_seeds in sorted({seeds, 4, 5}):  # the study's, and the desk profile's
                 ratio = predicted_ratio(fits, pairs, epochs, n_seeds, sigmas)
                 row[f"ratio_{n_seeds}_seeds"] = round(ratio, 3)
                 per_seed = sum(rows[n].cost_s(epochs[n]) / len(rows[n].histories) for n in names)
@@ -361,7 +360,10 @@ def train_row(row: StudyRow, seeds: int, precision: str) -> None:
     init_from = None
     if row.init == "pretrained":  # the study's own map-1 1D CNN, its first seed's best model
         source = composed(StudyRow("cnn1d_20k", "train", 0))
-        init_from = row_dir(precision, "cnn1d_20k", row_seeds(source, ROWS[1], 1)[0]) / "model.pt"
+        source_row = next(r for r in ROWS if r.name == "cnn1d_20k")
+        init_from = (
+            row_dir(precision, "cnn1d_20k", row_seeds(source, source_row, 1)[0]) / "model.pt"
+        )
         if not init_from.is_file():
             raise SystemExit(f"{init_from}: train cnn1d_20k first (it is the pretrained init)")
     start = time.perf_counter()
