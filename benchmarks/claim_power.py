@@ -250,15 +250,12 @@ def row_epochs(rows: Mapping[str, RowCurves], epochs_20k: int) -> dict[str, floa
 def predicted_ratio(fits: Mapping, pairs, epochs: Mapping[str, float], seeds: int, sigmas: float):
     """The smallest |margin − threshold| / band the fits predict at `epochs` per row with
     `seeds` seeds (band as the report's rule: Student t of Welch's degrees of freedom)."""
-    from scipy import stats
-
-    from scanloc.report.verdicts import welch_dof
+    from scanloc.report.verdicts import band_multiplier, welch_dof
 
     ratios = []
     for a, b, threshold in pairs:
         (mean_a, sd_a), (mean_b, sd_b) = (predicted(fits[n], epochs[n]) for n in (a, b))
-        dof = welch_dof([(sd_a, seeds - 1), (sd_b, seeds - 1)])
-        k = float(stats.t.ppf(stats.norm.cdf(sigmas), dof)) if dof else sigmas
+        k = band_multiplier(sigmas, welch_dof([(sd_a, seeds - 1), (sd_b, seeds - 1)]))
         ratios.append(abs(mean_a - mean_b - threshold) / (k * math.hypot(sd_a, sd_b)))
     return min(ratios)
 

@@ -201,13 +201,19 @@ class ClaimConfig:
         (sd_a, dof_a, why_a), (sd_b, dof_b, why_b) = self.row_sd(a), self.row_sd(b)
         if sd_a is None or sd_b is None:
             return Comparison(label, value, threshold, None, strict, f"{why_a} and {why_b}")
-        k, dof = self.sigmas, welch_dof([(sd_a, dof_a), (sd_b, dof_b)])
+        dof = welch_dof([(sd_a, dof_a), (sd_b, dof_b)])
+        k = band_multiplier(self.sigmas, dof)
         if dof is not None:
-            k = float(stats.t.ppf(stats.norm.cdf(self.sigmas), dof))
             why = f"{why_a} and {why_b}; Student t {k:.2f} at {dof:.1f} degrees of freedom"
         else:
             why = f"{why_a} and {why_b}; {self.sigmas:g} σ"
         return Comparison(label, value, threshold, k * math.hypot(sd_a, sd_b), strict, why)
+
+
+def band_multiplier(sigmas: float, dof: float | None) -> float:
+    """k of a band k · √(sd₁² + sd₂²): `sigmas` where no s.d. is estimated (dof None), else the
+    Student-t quantile of the same two-sided level at `dof` degrees of freedom."""
+    return sigmas if dof is None else float(stats.t.ppf(stats.norm.cdf(sigmas), dof))
 
 
 def welch_dof(parts: Sequence[tuple[float, int | None]]) -> float | None:
