@@ -5,7 +5,7 @@
 # Before a release, and in CI (.ci/run):
 #   make test-all   everything: the fast suite, the slow tests (DDP spawn, torch.compile
 #                   equivalence, launcher sweeps, ...) and the end-to-end ones (a smoke
-#                   `dvc repro` in a copy, the README's commands, dvc.lock against the tree)
+#                   `dvc repro` in a copy, docs/experiments.md's sweeps, dvc.lock against the tree)
 #   make test-slow / make test-e2e   one of those two kinds alone
 # The tests run in parallel (pytest-xdist, one worker per core, one file per worker at a time:
 # module fixtures are built once); `make test XDIST=` runs them in one process.
@@ -17,7 +17,7 @@ TORCH_SPEC ?= torch==2.13.0
 XDIST ?= -n auto --dist loadfile
 PYTEST := PATH="$(BIN):$$PATH" python -m pytest $(XDIST)
 
-.PHONY: setup repro test test-slow test-e2e test-all lint bench
+.PHONY: setup repro readme test test-slow test-e2e test-all lint bench
 
 setup: $(VENV)/.ready
 
@@ -30,6 +30,11 @@ $(VENV)/.ready: pyproject.toml
 
 repro: setup
 	PATH="$(BIN):$$PATH" dvc repro
+
+# The README's results table from the committed metrics (reports/summary.json); after a repro
+# whose metrics are committed (tests/test_committed_metrics.py checks the two agree).
+readme: setup
+	$(BIN)/python -m scanloc.report.readme_results README.md
 
 # The markers' default selection (pyproject.toml addopts): not slow and not e2e.
 test: setup

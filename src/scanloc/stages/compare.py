@@ -1,7 +1,7 @@
 """`compare`: the offline comparison page of two or more DVC experiments or of the jobs of a
 Hydra multirun (scanloc.report.compare); not a DVC stage, it only reads what runs left. It also
 prints the changed parameters and the headline metrics as plain tables, one row per parameter
-or metric and one column per run, so that they fit a terminal (README, "Experiments")."""
+or metric and one column per run, so that they fit a terminal (docs/experiments.md)."""
 
 from __future__ import annotations
 

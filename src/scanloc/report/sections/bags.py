@@ -24,7 +24,7 @@ from scanloc.report.render.tables import MISSING, fixed
 
 PARAMS_FILE = Path("params.yaml")
 REFERENCE = "amcl_global"  # the estimates the others are compared with, without truth
-NO_BAGS = "No bags: see README 'Your own bag'."
+NO_BAGS = "No bags: see docs/sites.md, 'Your own bag'."
 
 
 def bag_names(ctx: ReportContext) -> list[str]:

@@ -1,6 +1,7 @@
-"""The README's sweep commands, run as written (the smoke profile added) from the root of a
-fresh copy of the repository: the default sweep folder resolves, every job runs, each sweep
-writes its summary.csv, and the compare command the README ends with reads one of them."""
+"""The sweep commands of docs/experiments.md, run as written (the smoke profile added) from the
+root of a fresh copy of the repository: the default sweep folder resolves, every job runs, each
+sweep writes its summary.csv, and the compare command the section ends with reads one of
+them."""
 
 from __future__ import annotations
 
@@ -19,17 +20,17 @@ from test_pipeline_e2e import REPO_ROOT, copy_project, dvc
 pytestmark = pytest.mark.e2e  # copies the repository, runs dvc and the sweeps
 
 
-def readme_section(title: str) -> str:
-    text = (REPO_ROOT / "README.md").read_text()
+def docs_section(title: str) -> str:
+    text = (REPO_ROOT / "docs" / "experiments.md").read_text()
     match = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## )", text, re.S | re.M)
-    assert match, f"README.md has no section '## {title}'"
+    assert match, f"docs/experiments.md has no section '## {title}'"
     return match.group(1)
 
 
 def sweep_commands() -> list[str]:
     """The `python -m ... -m ...` lines of the Sweeps section's code block."""
-    block = re.search(r"```bash\n(.*?)```", readme_section("Sweeps"), re.S)
-    assert block, "README.md, Sweeps: no bash block"
+    block = re.search(r"```bash\n(.*?)```", docs_section("Sweeps"), re.S)
+    assert block, "docs/experiments.md, Sweeps: no bash block"
     return [line for line in block.group(1).splitlines() if line.startswith("python -m")]
 
 
@@ -43,7 +44,7 @@ def run(command: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
     return result
 
 
-def test_readme_sweeps_run_as_written(tmp_path: Path) -> None:
+def test_documented_sweeps_run_as_written(tmp_path: Path) -> None:
     commands = sweep_commands()
     sweeps = [c for c in commands if " -m " in c and "stages.compare" not in c]
     compares = [c for c in commands if "stages.compare" in c]
@@ -61,7 +62,7 @@ def test_readme_sweeps_run_as_written(tmp_path: Path) -> None:
         assert [row["status"] for row in rows] == ["ok"] * jobs, rows
         assert all(float(row["val_mae"]) > 0 for row in rows), rows
         folders.append(folder)
-    # The README's compare line names its folder as multirun/train/<date>: use the first sweep.
+    # The compare line names its folder as multirun/train/<date>: use the first sweep.
     compare = compares[0].replace("multirun/train/<date>", str(folders[0].relative_to(repo)))
     result = run(shlex.split(compare), repo)
     written = re.search(r"compare: wrote (\S+compare\.html)", result.stdout)
