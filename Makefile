@@ -1,5 +1,6 @@
 # Two entry points on a fresh machine (each sets up .venv first):
-#   make repro      set up, then run the whole pipeline (`dvc repro`, profile from params.yaml)
+#   make repro      set up, then run the whole pipeline (sites.yaml from params.yaml, then
+#                   `dvc repro`, profile from params.yaml)
 #   make test       set up, then the fast suite: unit and contract tests (minutes on 2 cores);
 #                   run it before every commit
 # Before a release, and in CI (.ci/run):
@@ -17,7 +18,7 @@ TORCH_SPEC ?= torch==2.13.0
 XDIST ?= -n auto --dist loadfile
 PYTEST := PATH="$(BIN):$$PATH" python -m pytest $(XDIST)
 
-.PHONY: setup repro readme test test-slow test-e2e test-all lint bench
+.PHONY: setup repro sites readme test test-slow test-e2e test-all lint bench
 
 setup: $(VENV)/.ready
 
@@ -28,8 +29,12 @@ $(VENV)/.ready: pyproject.toml
 	$(BIN)/python -m pip install --quiet -e ".[dev]"
 	touch $@
 
-repro: setup
+# sites.yaml first: the sites and jobs of params.yaml written down for dvc.yaml (scanloc.sites).
+repro: setup sites
 	PATH="$(BIN):$$PATH" dvc repro
+
+sites: setup
+	$(BIN)/python -m scanloc.sites
 
 # The README's results table from the committed metrics (reports/summary.json); after a repro
 # whose metrics are committed (tests/test_committed_metrics.py checks the two agree).

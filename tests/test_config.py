@@ -22,6 +22,7 @@ from omegaconf import OmegaConf
 
 from scanloc.localize.catalog import localizer_overrides
 from scanloc.scanlocnet.schedule import training_epochs
+from scanloc.sites import pipeline_vars
 from scanloc.stages.train_scanlocnet import samples_per_cell_floor
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -156,27 +157,39 @@ EXAMPLE_BAGS = {
 
 
 def dvc_stages(profile: str, trainer: str) -> dict[str, dict[str, Any]]:
-    """Every stage of dvc.yaml with foreach and matrix expanded as DVC does it, for the maps of
+    """Every stage of dvc.yaml with foreach and matrix expanded as DVC does it, for the sites of
     params.yaml and the given profile and trainer (a foreach or matrix dimension over a dict
-    iterates its keys, and a foreach item is the dict's value)."""
+    iterates its keys, and a foreach item is the dict's value); dvc.yaml's `vars` as
+    scanloc.sites writes them for these sites."""
     spec = yaml.safe_load((REPO_ROOT / "dvc.yaml").read_text())
     params = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
+    # No bag ships with the repository: an example entry, so that the bag stages' commands and
+    # params are checked like every other stage's.
+    params["bags"] = params.get("bags") or EXAMPLE_BAGS
+    runs = yaml.safe_load((CONF_DIR / "seeds.yaml").read_text())
+    paper_maps = {
+        name: yaml.safe_load((CONF_DIR / "dataset" / f"{name}.yaml").read_text())["map"]
+        for name in PAPER_DATASETS
+    }
     variables = {
         "profile": profile,
         "trainer": trainer,
-        "maps": params["maps"],
-        "real_logs": params["real_logs"],
-        "real_ablation_logs": params["real_ablation_logs"],
-        # No bag ships with the repository: an example entry, so that the bag stages' commands
-        # and params are checked like every other stage's.
-        "bags": params.get("bags") or EXAMPLE_BAGS,
+        **{key: params[key] for key in ("maps", "real_logs", "real_ablation_logs", "bags")},
+        **runs,
+        **pipeline_vars(params, runs, paper_maps),
     }
+
+    def lookup(dotted: str) -> Any:
+        found: Any = variables
+        for part in dotted.split("."):
+            found = found[part]
+        return found
 
     def values(entries: Any) -> Any:
         if isinstance(entries, str):
-            found = re.fullmatch(r"\$\{(\w+)\}", entries)
+            found = re.fullmatch(r"\$\{([\w.]+)\}", entries)
             assert found, f"dvc.yaml: a foreach or matrix over {entries!r}"
-            return variables[found.group(1)]
+            return lookup(found.group(1))
         return entries
 
     stages: dict[str, dict[str, Any]] = {}
@@ -202,6 +215,14 @@ def dvc_stages(profile: str, trainer: str) -> dict[str, dict[str, Any]]:
                 stage["do"], {**variables, "key": key, "item": item}
             )
     return stages
+
+
+def pipeline_sites() -> dict[str, dict[str, str]]:
+    """sites.yaml's `sites` for params.yaml's sites and the example bag (dvc_stages)."""
+    params = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
+    params["bags"] = params.get("bags") or EXAMPLE_BAGS
+    runs = yaml.safe_load((CONF_DIR / "seeds.yaml").read_text())
+    return pipeline_vars(params, runs, {})["sites"]
 
 
 def named(entries: list[Any]) -> list[str]:
@@ -417,20 +438,23 @@ def test_smoke_and_laptop_are_scaled_down():
 
 def test_a_real_log_trains_denser_than_a_simulated_map():
     """The laptop's real-log floor of scans per cell (chosen on intel's tune hold-out) reaches
-    the log trainings of dvc.yaml, real_train's model and a bag's, and only those; the ablation's
+    the real sites' trainings of dvc.yaml, a log's model and a bag's, and only those; the ablation's
     variants, its matched baseline `none` included, all train at the simulated maps' floor (a
     fair ablation trains every row alike, and six sparse trainings cost less than five dense)."""
     floors: dict[str, set[int]] = {}
+    kinds = {site: entry["kind"] for site, entry in pipeline_sites().items()}
     for name, stage in dvc_stages("laptop", "cpu").items():
         config_name, overrides = stage_command(stage)
         if config_name in ("scanlocnet", "real_ablation"):
             cfg = OmegaConf.create(resolved(config_name, overrides))
-            floors.setdefault(name.split("@")[0], set()).add(samples_per_cell_floor(cfg))
-    assert floors.keys() == {"train_scanlocnet", "real_train", "real_ablation", "bag_train"}
-    assert floors["real_train"] == floors["bag_train"]
-    assert floors["real_ablation"] == floors["train_scanlocnet"]
-    assert len(floors["real_train"]) == len(floors["real_ablation"]) == 1
-    (real,), (simulated,) = floors["real_train"], floors["train_scanlocnet"]
+            stage_name, _, site = name.partition("@")
+            which = "real_ablation" if stage_name == "real_ablation" else kinds[site]
+            floors.setdefault(which, set()).add(samples_per_cell_floor(cfg))
+    assert floors.keys() == {"map", "log", "real_ablation", "bag"}
+    assert floors["log"] == floors["bag"]
+    assert floors["real_ablation"] == floors["map"]
+    assert len(floors["log"]) == len(floors["real_ablation"]) == 1
+    (real,), (simulated,) = floors["log"], floors["map"]
     assert real > simulated
     # intel's 529 pose cells at 12 x 25000 scans: the 36 epochs the tune hold-out chose
     assert training_epochs(12, 25_000, 529, real) == 36
@@ -626,7 +650,12 @@ def test_dvc_stage_list_is_the_contract():
     params = yaml.safe_load((REPO_ROOT / "params.yaml").read_text())
     expected = dvc_stages(params["profile"], params["trainer"])
     if not params.get("bags"):  # the example bag of dvc_stages is not in params.yaml
-        expected = {n: s for n, s in expected.items() if not n.startswith("bag")}
+        example = [f"@{bag}" for bag in EXAMPLE_BAGS]
+        expected = {
+            n: s
+            for n, s in expected.items()
+            if not any(n.endswith(e) or f"{e}_" in n or f"{e}-" in n for e in example)
+        }
     assert set(names) == set(expected)
 
     def expansions(stage: str) -> set[str]:
@@ -634,46 +663,41 @@ def test_dvc_stage_list_is_the_contract():
 
     assert {n.split("@", 1)[0] for n in names} == {
         "maps",
+        "trajectory",
+        "real",
         "scans",
-        "valscans",
         "train",
         "transfer",
         "train_scanlocnet",
-        "trajectory",
-        "localize",
-        "localize_cnn",
-        "real",
-        "real_valscans",
-        "real_train",
         "real_ablation",
-        "real_localize",
-        "localize_seeds",
+        "localize",
         "evaluate",
         "report",
-    }
+    }  # `bag` too, once params.yaml lists a bag
     maps = set(params["maps"])
+    logs = set(params["real_logs"])
     assert {"sparse_obstacles", "simple_rooms"} <= maps  # the paper's two maps by default
+    assert "intel" in logs  # the real-data evaluation runs by default on the intel log
+    sites = maps | logs
     assert expansions("train") == {*ROWS, "ensemble"}
     assert expansions("transfer") == {"scratch", "pretrained"}
-    assert expansions("maps") == maps == expansions("valscans") == expansions("train_scanlocnet")
-    assert expansions("scans") == set(DATASETS)
+    assert expansions("maps") == maps and expansions("real") == logs
+    assert expansions("scans") == set(DATASETS) | {f"{site}_val" for site in sites}
+    assert expansions("train_scanlocnet") == sites
     seeded = ("drive", "kidnap", "kidnap_s1", "kidnap_s2", "kidnap_s3", "kidnap_s4")
     runs = {f"{m}-{r}" for m in maps for r in seeded}
-    tune = ("tune_kidnap", "tune_kidnap_s1", "tune_kidnap_s2", "tune_kidnap_s3", "tune_kidnap_s4")
-    assert expansions("trajectory") == runs | {f"{m}-{r}" for m in maps for r in tune}
-    assert expansions("localize") == runs  # the tune runs are localized by hand, when tuning
-    assert expansions("localize_cnn") == {"drive", "kidnap"}
-    logs = set(params["real_logs"])
-    assert "intel" in logs  # the real-data evaluation runs by default on the intel log
-    assert expansions("real") == logs == expansions("real_valscans") == expansions("real_train")
+    # tune_kidnap: the studies' run (conf/study/), localized by them, never scored
+    assert expansions("trajectory") == runs | {f"{m}-tune_kidnap" for m in maps}
+    real_runs = {f"{log}-{r}" for log in logs for r in ("real", "sim", "kidnap")}
+    cnn = {"cnn-drive", "cnn-kidnap"}
+    seed_runs = {
+        f"seeds-{log}-{r}-{o}" for log in logs for r in ("real", "kidnap") for o in ODOMETRY
+    }
+    assert expansions("localize") == runs | real_runs | cnn | seed_runs
     variants = ("none", "no_return", "short", "long", "noise", "all")
     ablated = set(params["real_ablation_logs"])
     assert ablated <= logs, "params.yaml real_ablation_logs: names from real_logs"
     assert expansions("real_ablation") == {f"{log}-{v}" for log in ablated for v in variants}
-    runs = ("real", "sim", "kidnap")
-    assert expansions("real_localize") == {f"{log}-{r}" for log in logs for r in runs}
-    seed_runs = {f"{log}-{r}-{o}" for log in logs for r in ("real", "kidnap") for o in ODOMETRY}
-    assert expansions("localize_seeds") == seed_runs
     for single in ("evaluate", "report"):
         assert single in names
     assert params["profile"] in PROFILES and params["trainer"] in TRAINERS

@@ -57,8 +57,8 @@ def build_report(
     """Write <out_dir>/report.html (self-contained), <out_dir>/report.md and
     <out_dir>/figures/*.png from the artifacts under `root`; return the headline metrics.
 
-    context: {"profile": str, "params": dict (resolved config), "git_commit": str | None,
-    "maps": [names of params.yaml `maps`], "real_logs": [names of its `real_logs`]};
+    context: {"profile": str, "params": dict (the run's knobs), "git_commit": str | None,
+    "sites": {site: kind}, "maps", "real_logs", "bags": [the sites of each kind, in order]};
     report_cfg: conf/report.yaml (`claims`, `seed_spread`, `inconclusive_sigmas`,
     `figure_localizers`); localizer_conf: the localizer configs (conf/localizer).
     """

@@ -16,8 +16,9 @@ from scanloc.report.render.document import Builder, Section
 @dataclass(frozen=True)
 class ReportContext:
     """The figure writer, the loaded artifacts, the localizer catalog, the claims' verdicts
-    and their legend, and the run's context: {"profile", "params" (resolved config),
-    "git_commit", "maps" (params.yaml `maps`), "real_logs" (its `real_logs`)}."""
+    and their legend, and the run's context: {"profile", "params" (the run's knobs),
+    "git_commit", "sites" ({site: kind}), "maps", "real_logs", "bags" (the sites of each
+    kind, in order)}."""
 
     builder: Builder
     artifacts: Artifacts

@@ -27,6 +27,7 @@ from scanloc.bags.truth_map import SplitSettings, map_from_truth
 from scanloc.io import atomic_dir
 from scanloc.real.log_mapping import save_log_map
 from scanloc.sensor.simulate import laser_spec_from_config
+from scanloc.sites import check_listed
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.stages.site_budget import check_site
 from scanloc.trajectory.format import save_trajectory
@@ -84,6 +85,7 @@ def is_auto(cfg: DictConfig) -> bool:
 
 @stage_main("bag")
 def main(cfg: DictConfig) -> None:
+    check_listed(str(cfg.name))
     with timed_stage(f"bag_{cfg.name}", cfg.timing_dir):
         given_map = bool(cfg.map_yaml)
         if not given_map and not (cfg.truth_topic or cfg.truth_csv):

@@ -1,10 +1,9 @@
 """`evaluate` stage: Table 2 (paper §4.4), modern and global-localization metrics for every
-localizer on every trajectory of the pipeline's maps (params.yaml `maps`) and real logs
-(`real_logs`); the look-alike stretches of each map's evaluation runs; then, per map and log,
-the figures over its evaluation seeds (success rates with Wilson intervals, steps to converge
-and to recover, re-losses, false convergences, the rates where the scans can tell); and,
-per real log, run and odometry source, the compared localizers over filter seeds
-(localize_seeds stage)."""
+localizer on every localized run of every site (`sites` on the command line, conf/seeds.yaml
+`runs` per kind); the look-alike stretches of each simulated map's evaluation runs; then, per
+site, the figures over its evaluation seeds (success rates with Wilson intervals, steps to
+converge and to recover, re-losses, false convergences, the rates where the scans can tell);
+and, per run over filter seeds and odometry source, the compared localizers' figures."""
 
 from __future__ import annotations
 
@@ -12,7 +11,6 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
 from omegaconf import DictConfig
 
 from scanloc.evaluate.look_alikes import LookAlikeParams, look_alikes_json, map_look_alikes
@@ -22,35 +20,10 @@ from scanloc.io import atomic_path
 from scanloc.stages._app import stage_main, timed_stage
 
 
-def pipeline_maps(params_path: Path = Path("params.yaml")) -> list[str]:
-    """The map names of params.yaml `maps`, in their order."""
-    maps = yaml.safe_load(params_path.read_text()).get("maps")
-    if not isinstance(maps, dict) or not maps:
-        raise ValueError(f"{params_path}: field 'maps': expected a mapping of map entries")
-    return list(maps)
-
-
-def pipeline_real_logs(params_path: Path = Path("params.yaml")) -> list[str]:
-    """The log names of params.yaml `real_logs` (none when the field is absent or empty)."""
-    logs = yaml.safe_load(params_path.read_text()).get("real_logs") or {}
-    if not isinstance(logs, dict):
-        raise ValueError(f"{params_path}: field 'real_logs': expected a mapping of log entries")
-    return list(logs)
-
-
-def pipeline_bags(params_path: Path = Path("params.yaml")) -> list[str]:
-    """The bag names of params.yaml `bags` (none when the field is absent or empty)."""
-    bags = yaml.safe_load(params_path.read_text()).get("bags") or {}
-    if not isinstance(bags, dict):
-        raise ValueError(f"{params_path}: field 'bags': expected a mapping of bag entries")
-    return list(bags)
-
-
 def maps_look_alikes(cfg: DictConfig, sets: Mapping[str, Sequence[str]]) -> dict[str, Any]:
     """{map: look-alike figures of its evaluation runs} (evaluate/look_alikes.py)."""
-    params = LookAlikeParams.from_config(
-        dict(cfg.look_alikes), "conf/evaluate.yaml: field 'look_alikes'"
-    )
+    options = {k: v for k, v in cfg.look_alikes.items() if k != "kinds"}
+    params = LookAlikeParams.from_config(options, "conf/evaluate.yaml: field 'look_alikes'")
     root = Path(cfg.trajectory_root)
     return {
         name: map_look_alikes(
@@ -63,10 +36,9 @@ def maps_look_alikes(cfg: DictConfig, sets: Mapping[str, Sequence[str]]) -> dict
 @stage_main("evaluate")
 def main(cfg: DictConfig) -> None:
     with timed_stage("evaluate", cfg.timing_dir):
-        maps, logs = pipeline_maps(), pipeline_real_logs()
-        names = [f"{m}_{run}" for m in maps for run in cfg.runs]
-        names += [f"{log}_{run}" for log in logs for run in cfg.real_runs]
-        names += [f"{bag}_real" for bag in pipeline_bags()]  # a bag is one real run
+        sites: dict[str, str] = dict(cfg.sites)
+        runs = {site: cfg.runs[kind] for site, kind in sites.items()}
+        names = [f"{site}_{run}" for site, kind in runs.items() for run in kind.localized]
         metrics = evaluate_runs(
             names,
             Path(cfg.trajectory_root),
@@ -74,9 +46,13 @@ def main(cfg: DictConfig) -> None:
             Path(cfg.metrics_path),
             Path(cfg.table2_dir),
         )
-        sets = {m: [f"{m}_{run}" for run in cfg.seed_runs] for m in maps}
-        sets |= {log: [f"{log}_{run}" for run in cfg.real_seed_runs] for log in logs}
-        look_alikes = maps_look_alikes(cfg, {m: sets[m] for m in maps})
+        sets = {
+            site: [f"{site}_{run}" for run in kind.scored_over_seeds]
+            for site, kind in runs.items()
+            if kind.scored_over_seeds
+        }
+        exact = [site for site in sets if sites[site] in cfg.look_alikes.kinds]
+        look_alikes = maps_look_alikes(cfg, {site: sets[site] for site in exact})
         with atomic_path(Path(cfg.look_alikes_path)) as tmp:
             tmp.write_text(look_alikes_json(look_alikes), encoding="utf-8")
         ambiguous = {
@@ -88,15 +64,15 @@ def main(cfg: DictConfig) -> None:
         with atomic_path(Path(cfg.global_metrics_path)) as tmp:
             tmp.write_text(nested_json(figures), encoding="utf-8")
         real_seeds = {
-            f"{log}_{run}": {
+            f"{site}_{run}": {
                 odometry: evaluate_filter_seeds(
-                    Path(cfg.trajectory_root) / f"{log}_{run}",
-                    Path(cfg.localize_seeds_root) / f"{log}_{run}_{odometry}",
+                    Path(cfg.trajectory_root) / f"{site}_{run}",
+                    Path(cfg.localize_seeds_root) / f"{site}_{run}_{odometry}",
                 )
-                for odometry in cfg.seed_study.odometry
+                for odometry in cfg.odometry
             }
-            for log in logs
-            for run in cfg.seed_study.runs
+            for site, kind in runs.items()
+            for run in kind.over_filter_seeds
         }
         with atomic_path(Path(cfg.real_seeds_path)) as tmp:
             tmp.write_text(nested_json(real_seeds), encoding="utf-8")

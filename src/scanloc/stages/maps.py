@@ -17,6 +17,7 @@ from omegaconf import DictConfig
 
 from scanloc.io import atomic_dir, write_json
 from scanloc.models.trainer_setup import cpu_has_native_bf16
+from scanloc.sites import check_listed
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.stages.budget import (
     check_memory,
@@ -44,6 +45,7 @@ def main(cfg: DictConfig) -> None:
     map_cfg = to_dict(cfg.map)
     label = map_label(map_cfg)
     checks = cfg.checks
+    check_listed(str(cfg.map.name))
     with timed_stage(f"maps_{cfg.map.name}", cfg.timing_dir):
         shape = planned_shape(map_cfg)
         estimate = None

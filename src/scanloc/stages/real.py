@@ -50,31 +50,17 @@ from scanloc.real.split import (
 )
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
+from scanloc.sites import check_listed
 from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
 from scanloc.stages.site_budget import check_site
 from scanloc.trajectory.format import Trajectory, save_trajectory
 from scanloc.trajectory.laser_odometry import drift, increments, laser_odometry
 
 
-def log_entry(cfg: DictConfig) -> dict:
-    """The log's `real_logs` entry of `params_file` ({} when there is none: a run by hand)."""
-    path = Path(cfg.params_file)
-    params = yaml.safe_load(path.read_text()) if path.is_file() else {}
-    return dict(((params or {}).get("real_logs") or {}).get(cfg.log_name) or {})
-
-
-def chosen_noise(cfg: DictConfig) -> dict:
-    """The simulated scans' noise: conf/noise/<entry's noise> when the entry names one."""
-    name = log_entry(cfg).get("noise")
-    if name is None:
-        return to_dict(cfg.noise)
-    return yaml.safe_load((Path(conf_dir()) / "noise" / f"{name}.yaml").read_text())
-
-
 def chosen_sensor(cfg: DictConfig, from_log: dict) -> dict:
-    """The log's sensor, or the override the `real_logs` entry (or the command line) names,
+    """The log's sensor, or conf/sensor/<sensor_override> (a `real_logs` entry's overrides),
     which must have the log's beams and angles (its rate and range limits are its choice)."""
-    name = cfg.sensor_override or log_entry(cfg).get("sensor")
+    name = cfg.sensor_override
     if name is None:
         return from_log
     path = Path(conf_dir()) / "sensor" / f"{name}.yaml"
@@ -162,11 +148,12 @@ def save_mapping_scans(
 @stage_main("real")
 def main(cfg: DictConfig) -> None:
     log_path = Path(cfg.log)
+    check_listed(str(cfg.log_name))
     with timed_stage(f"real_{cfg.log_name}", cfg.timing_dir):
         log = read_carmen_log(log_path)
         stream = log_stream(log, str(cfg.stream))
         from_log = sensor_from_log(stream, to_dict(cfg.sensor_defaults))
-        sensor, noise = chosen_sensor(cfg, from_log), chosen_noise(cfg)
+        sensor, noise = chosen_sensor(cfg, from_log), to_dict(cfg.noise)
         spec = laser_spec_from_config(sensor)
         count = (
             stream.num_scans if cfg.max_scans is None else min(int(cfg.max_scans), stream.num_scans)

@@ -33,9 +33,9 @@ def git_commit(repo: Path, source_paths: Sequence[str]) -> str | None:
     return commit + ("+dirty" if changed else "")
 
 
-def profile_params(profile: str) -> dict[str, Any]:
-    """params.yaml and what the profile's conf/scale files change: the run's knobs."""
-    params: dict[str, Any] = {"params.yaml": yaml.safe_load(Path("params.yaml").read_text())}
+def run_params(profile: str, sites: dict[str, str]) -> dict[str, Any]:
+    """The run's knobs: its sites and profile, and what the profile's conf/scale files change."""
+    params: dict[str, Any] = {"sites": sites, "profile": profile}
     for path in sorted(Path("conf/scale", profile).glob("*.yaml")):
         params[str(path)] = yaml.safe_load(path.read_text())
     return params
@@ -45,13 +45,15 @@ def profile_params(profile: str) -> dict[str, Any]:
 def main(cfg: DictConfig) -> None:
     with timed_stage("report", cfg.timing_dir):
         profile = str(cfg.profile.name)
-        params = profile_params(profile)
+        sites: dict[str, str] = dict(cfg.sites)
         context = {
             "profile": profile,
-            "params": params,
+            "params": run_params(profile, sites),
             "git_commit": git_commit(Path("."), [str(p) for p in cfg.source_paths]),
-            "maps": list(params["params.yaml"].get("maps") or {}),
-            "real_logs": list(params["params.yaml"].get("real_logs") or {}),
+            "sites": sites,
+            "maps": [site for site, kind in sites.items() if kind == "map"],
+            "real_logs": [site for site, kind in sites.items() if kind == "log"],
+            "bags": [site for site, kind in sites.items() if kind == "bag"],
         }
         headline = build_report(Path("."), Path(cfg.out_dir), context, to_dict(cfg))
         write_json(Path(cfg.summary_path), headline)

@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import yaml
 
 from scanloc.evaluate.table2 import MODERN_COLUMNS, TABLE2_COLUMNS, TIME_COLUMN, format_rows
 from scanloc.report.artifacts import LOCALIZE_DIRS, TRAJECTORIES, localize_timings
@@ -22,23 +21,13 @@ from scanloc.report.context import ReportContext, SectionSpec
 from scanloc.report.render.document import Para, Section, Table
 from scanloc.report.render.tables import MISSING, fixed
 
-PARAMS_FILE = Path("params.yaml")
 REFERENCE = "amcl_global"  # the estimates the others are compared with, without truth
 NO_BAGS = "No bags: see docs/sites.md, 'Your own bag'."
 
 
 def bag_names(ctx: ReportContext) -> list[str]:
-    """The bag names: the run context's `bags` when it holds them, else params.yaml `bags`
-    under the artifact root, read as the evaluate stage reads it (stages/evaluate.py)."""
-    if "bags" in ctx.run:
-        return list(ctx.run.get("bags") or [])
-    path = ctx.builder.root / PARAMS_FILE
-    if not path.is_file():
-        return []
-    bags = (yaml.safe_load(path.read_text()) or {}).get("bags") or {}
-    if not isinstance(bags, dict):
-        raise ValueError(f"{path}: field 'bags': expected a mapping of bag entries")
-    return list(bags)
+    """The bag sites of the run (the report stage's `sites`)."""
+    return list(ctx.run.get("bags") or [])
 
 
 def estimates(root: Path, run: str) -> dict[str, pd.DataFrame]:
