@@ -60,8 +60,9 @@ GROUP_HOST = {
     "trainer": "train",
     "localizer": "localize",
     "run": "trajectory",
-    "profile": "report",
+    "profile": "trajectory",
     "study": "tune",
+    "site_kind": "scanlocnet",
 }
 # Not checked option by option: the profile picks the scale files (test_scale_files_...),
 # hydra/launcher is exercised in test_launchers.py.

@@ -1,10 +1,12 @@
 """Adding or editing one map, log or bag of params.yaml reruns only its own stages, evaluate and
-report: asked of DVC itself, which resolves dvc.yaml against params.yaml with one more entry of
-each table and says which stages' commands or params depend on it."""
+report: asked of DVC itself, which resolves dvc.yaml against params.yaml (and the sites.yaml
+that scanloc.sites writes from it) with one more entry of each table and says which stages'
+commands or params depend on it."""
 
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -22,7 +24,7 @@ NEW_ENTRIES = {
             "depends": "/data/office",
         }
     },
-    "real_logs": {"aces": {"log": "/data/aces.log.gz"}},
+    "real_logs": {"aces": {"log": "/data/aces.log.gz", "overrides": ""}},
     "bags": {
         "robot": {
             "bag": "/data/robot.bag",
@@ -55,10 +57,17 @@ def stage_table(folder: Path) -> dict[str, tuple[str, list[str]]]:
     return {k: (v[0], v[1]) for k, v in json.loads(done.stdout.splitlines()[-1]).items()}
 
 
+def write_sites(folder: Path) -> None:
+    """sites.yaml from the folder's params.yaml, as `make repro` writes it."""
+    subprocess.run(
+        [sys.executable, "-m", "scanloc.sites"], cwd=folder, capture_output=True, check=True
+    )
+
+
 @pytest.fixture(scope="module")
 def pipeline_copy(tmp_path_factory: pytest.TempPathFactory) -> Path:
     folder = tmp_path_factory.mktemp("pipeline")
-    for name in ("dvc.yaml", "params.yaml"):
+    for name in ("dvc.yaml", "params.yaml", "sites.yaml"):
         shutil.copy(REPO_ROOT / name, folder / name)
     shutil.copytree(REPO_ROOT / "conf", folder / "conf")
     dvc = Path(sys.executable).parent / "dvc"
@@ -76,13 +85,17 @@ def test_a_new_entry_touches_only_its_own_stages_evaluate_and_report(
     params = yaml.safe_load(original)
     params[table] = {**(params.get(table) or {}), **NEW_ENTRIES[table]}
     params_path.write_text(yaml.safe_dump(params, sort_keys=False))
+    sites_path = pipeline_copy / "sites.yaml"
+    sites = sites_path.read_text()
     try:
+        write_sites(pipeline_copy)
         after = stage_table(pipeline_copy)
     finally:
         params_path.write_text(original)
+        sites_path.write_text(sites)
     (name,) = NEW_ENTRIES[table]
     own = {s for s in after if s not in before}
-    assert own and all(f"@{name}" in s for s in own), own
+    assert own and all(re.search(rf"[@-]{name}([-_]|$)", s) for s in own), own
     # An existing stage reruns when its command or its params.yaml keys see the new entry.
     touched = {
         s

@@ -21,7 +21,7 @@ from omegaconf import OmegaConf
 
 from scanloc.data.scan_dataset import save_scan_dataset
 from scanloc.sensor.laser import LaserSpec
-from scanloc.stages._app import is_rank_zero
+from scanloc.stages._app import is_rank_zero, run_folder
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = REPO_ROOT / "conf"
@@ -186,3 +186,15 @@ def test_ddp_two_cpu_processes(tiny_dataset: Path, tmp_path: Path):
     check_metrics(metrics)
     assert (out_dir / "model.pt").is_file()
     assert json.loads((out_dir / "config.json").read_text())["batch_size"] == 4
+
+
+def test_a_run_by_hand_gets_a_readable_flat_folder() -> None:
+    """runs/<stage>/<entry>-<hash>/: the entry's name, never the overrides' paths as folders."""
+    bag = "bag=/data/robot.bag,map_yaml=/data/maps/office/map.yaml,name=office,profile=smoke"
+    folder = run_folder(bag)
+    assert folder.startswith("office-") and "/" not in folder and len(folder) == len("office-") + 8
+    assert run_folder(bag) == folder != run_folder(bag.replace("smoke", "laptop"))
+    assert run_folder("dataset=map_validation,dataset.map=intel").startswith("intel-")
+    assert run_folder("log=/data/logs/aces.log.gz").startswith("aces.log.gz-")
+    assert run_folder("model.lr=0.003").startswith("run-")
+    assert run_folder("") == "default"

@@ -10,7 +10,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from scanloc.lock_diff import classify, declared_stages, main, precision_dependent
+from scanloc.lock_diff import (
+    changed_outputs,
+    classify,
+    declared_stages,
+    main,
+    precision_dependent,
+)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DVC_YAML = yaml.safe_load((REPO_ROOT / "dvc.yaml").read_text())
@@ -26,17 +32,10 @@ def with_hash(lock: dict, stage: str, path: str, md5: str = "0" * 32) -> dict:
 
 
 def test_the_trainings_are_declared_and_what_reads_their_models_follows() -> None:
-    assert declared_stages(DVC_YAML) == {
-        "train",
-        "transfer",
-        "train_scanlocnet",
-        "real_train",
-        "real_ablation",
-        "bag_train",
-    }
+    assert declared_stages(DVC_YAML) == {"train", "transfer", "train_scanlocnet", "real_ablation"}
     found = precision_dependent(LOCK, declared_stages(DVC_YAML))
     # read a model: the localizers, the evaluation, the report
-    for stage in ("localize@sparse_obstacles-drive", "localize_cnn@drive", "evaluate", "report"):
+    for stage in ("localize@sparse_obstacles-drive", "localize@cnn-drive", "evaluate", "report"):
         assert stage in found, stage
     # the data: maps, scans, trajectories, real runs
     data = [s for s in LOCK["stages"] if s.split("@")[0] in ("maps", "scans", "trajectory", "real")]
@@ -72,3 +71,13 @@ def test_the_command_compares_with_the_commit_and_fails_on_changed_data(
     out = capsys.readouterr().out
     assert "1 outputs changed that must reproduce byte for byte" in out
     assert "trajectory@sparse_obstacles-drive: data/trajectories/sparse_obstacles_drive" in out
+
+
+def test_outputs_are_matched_by_path_so_a_renamed_stage_is_still_compared() -> None:
+    old = {"stages": {"real_train@intel": {"outs": [{"path": "models/x", "md5": "a"}]}}}
+    same = {"stages": {"train_scanlocnet@intel": {"outs": [{"path": "models/x", "md5": "a"}]}}}
+    other = {"stages": {"train_scanlocnet@intel": {"outs": [{"path": "models/x", "md5": "b"}]}}}
+    gone: dict = {"stages": {}}
+    assert changed_outputs(old, same) == []
+    assert changed_outputs(old, other) == [("train_scanlocnet@intel", "models/x")]
+    assert changed_outputs(old, gone) == [("real_train@intel", "models/x")]

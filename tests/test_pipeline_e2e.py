@@ -86,6 +86,8 @@ def copy_project(dest: Path, profile: str, extra_maps: dict | None = None) -> Pa
     params["real_logs"] = logs
     params["real_ablation_logs"] = [n for n in params.get("real_ablation_logs") or [] if n in logs]
     (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    # as `make repro` does: the sites and jobs of this params.yaml written down for dvc.yaml
+    subprocess.run([sys.executable, "-m", "scanloc.sites"], cwd=dest, check=True)
     subprocess.run(["git", "init", "-q"], cwd=dest, check=True)
     return dest
 

@@ -226,9 +226,8 @@ def synthetic_log(path: Path, room, scans: int = 80) -> tuple[np.ndarray, np.nda
 
 
 def test_the_stage_maps_only_the_mapping_part_of_a_third_log(tmp_path: Path, room) -> None:
-    """A log nobody tuned on, with a two-line `real_logs` entry, through the `real` stage."""
+    """A log nobody tuned on, its entry's command, through the `real` stage."""
     lasers, ranges = synthetic_log(tmp_path / "third.log", room)
-    (tmp_path / "params.yaml").write_text(f"real_logs:\n  third:\n    log: {tmp_path}/third.log\n")
     out = tmp_path / "out"
     args = [f"{k}={out / v}" for k, v in [
         ("map_dir", "maps/third"), ("real_dir", "third_real"), ("sim_dir", "third_sim"),
@@ -237,7 +236,7 @@ def test_the_stage_maps_only_the_mapping_part_of_a_third_log(tmp_path: Path, roo
         ("metrics_file", "real_third.json"), ("timing_dir", "timing"),
     ]]  # fmt: skip
     stage = [sys.executable, "-m", "scanloc.stages.real", "log_name=third"]
-    stage += [f"log={tmp_path / 'third.log'}", f"params_file={tmp_path / 'params.yaml'}", *args]
+    stage += [f"log={tmp_path / 'third.log'}", *args]
     stage += [f"hydra.run.dir={tmp_path / 'hydra'}"]
     done = subprocess.run(stage, cwd=REPO, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -284,18 +283,16 @@ def test_the_stage_maps_only_the_mapping_part_of_a_third_log(tmp_path: Path, roo
     assert np.array_equal(np.flatnonzero(mapping.is_val), np.flatnonzero(np.isin(kept, held)))
 
 
-def test_an_entry_may_name_a_sensor_override(tmp_path: Path, monkeypatch) -> None:
+def test_an_entry_may_name_a_sensor_override(monkeypatch) -> None:
+    """`overrides: "sensor_override=carmen_intel"` in a `real_logs` entry."""
     monkeypatch.setenv("SCANLOC_CONF", str(REPO / "conf"))
-    (tmp_path / "p.yaml").write_text("real_logs:\n  intel:\n    log: x\n    sensor: carmen_intel\n")
-    cfg = OmegaConf.create(
-        {"sensor_override": None, "params_file": str(tmp_path / "p.yaml"), "log_name": "intel"}
-        | {"log": "intel.log"}
-    )
+    cfg = OmegaConf.create({"sensor_override": "carmen_intel", "log_name": "intel"})
+    cfg.log = "intel.log"
     beams = {"num_beams": 180, "angle_min": -math.pi / 2, "angle_max": math.radians(89)}
     assert chosen_sensor(cfg, beams | {"range_max": 81.83})["range_max"] == 50.0
     with pytest.raises(ValueError, match=r"carmen_intel\.yaml: field 'num_beams'"):
         chosen_sensor(cfg, beams | {"num_beams": 181})
-    cfg.params_file = str(tmp_path / "none.yaml")  # no entry: the log's own sensor
+    cfg.sensor_override = None  # none: the log's own sensor
     assert chosen_sensor(cfg, beams | {"range_max": 81.83})["range_max"] == 81.83
 
 

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import yaml
 
 from scanloc.estimates import TABLE_COLUMNS
 from scanloc.evaluate.table2 import evaluate_runs
@@ -50,7 +49,6 @@ def write_run(root: Path, name: str, truth: np.ndarray, has_truth: bool, **extra
 
 
 def context(root: Path, bag_entries: dict, runs: list[str]) -> ReportContext:
-    (root / "params.yaml").write_text(yaml.safe_dump({"bags": bag_entries}))
     localization = evaluate_runs(
         runs,
         root / "data/trajectories",
@@ -65,7 +63,7 @@ def context(root: Path, bag_entries: dict, runs: list[str]) -> ReportContext:
         localizers=Localizers.load(),
         verdicts=[],
         legend={},
-        run={"profile": "smoke"},
+        run={"profile": "smoke", "bags": list(bag_entries)},
         figure_localizers=[],
     )
 

@@ -62,20 +62,25 @@ def precision_dependent(lock: Mapping, declared: set[str]) -> set[str]:
     return found
 
 
+def _outputs(lock: Mapping) -> dict[str, tuple[str, str | None]]:
+    """{output path: (its stage, its hash)} of a lock."""
+    return {
+        out["path"]: (name, out.get("md5"))
+        for name, entry in lock.get("stages", {}).items()
+        for out in entry.get("outs", [])
+    }
+
+
 def changed_outputs(old: Mapping, new: Mapping) -> list[tuple[str, str]]:
     """(stage, path) of every output whose hash differs between two locks, or that one of
-    them lacks, for the stages both have."""
-    old_stages, new_stages = old.get("stages", {}), new.get("stages", {})
+    them lacks; matched by path, so an output whose stage was renamed is still compared (the
+    stage named is the new lock's, else the old one's)."""
+    before, after = _outputs(old), _outputs(new)
     changed = []
-    for name in sorted(old_stages.keys() & new_stages.keys()):
-        hashes = [
-            {o["path"]: o.get("md5") for o in lock[name].get("outs", [])}
-            for lock in (old_stages, new_stages)
-        ]
-        for path in sorted(hashes[0].keys() | hashes[1].keys()):
-            if hashes[0].get(path) != hashes[1].get(path):
-                changed.append((name, path))
-    return changed
+    for path in sorted(before.keys() | after.keys()):
+        if before.get(path, (None, None))[1] != after.get(path, (None, None))[1]:
+            changed.append(((after.get(path) or before[path])[0], path))
+    return sorted(changed)
 
 
 def classify(

@@ -16,7 +16,9 @@ output key given on the command line is used as given.
 
 from __future__ import annotations
 
+import hashlib
 import os
+import re
 import sys
 import time
 import warnings
@@ -36,6 +38,28 @@ from scanloc.io import write_json
 # Lightning 2.6 on torch 2.13 warns about a torch-internal deprecation on every run; it is
 # not actionable here and would bury the stages' own messages.
 warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
+
+
+# The overrides that name what a run by hand is about, first found first used (run_folder).
+ENTRY_KEYS = ("name", "map_name", "log_name", "map.name", "dataset.map", "experiment", "trajectory",
+              "init", "dataset", "study", "map", "bag", "log")  # fmt: skip
+
+
+def run_folder(override_dirname: str) -> str:
+    """The folder name of a run by hand (runs/<stage>/<this>/, conf/_common.yaml): its entry's
+    name and a short hash of all its overrides (`office-3fa2c1d0`), not the overrides
+    themselves, whose paths would nest folders; Hydra keeps them in the folder's
+    .hydra/overrides.yaml."""
+    if not override_dirname:
+        return "default"
+    digest = hashlib.sha1(override_dirname.encode()).hexdigest()[:8]
+    given = dict(item.partition("=")[::2] for item in override_dirname.split(","))
+    entry = next((given[key] for key in ENTRY_KEYS if given.get(key)), "run")
+    readable = re.sub(r"[^A-Za-z0-9_.-]+", "_", Path(entry.rstrip("/")).name).strip("._") or "run"
+    return f"{readable[:40]}-{digest}"
+
+
+OmegaConf.register_new_resolver("run_folder", run_folder, replace=True)
 
 
 # A user's mistake, not a bug (module docstring); the library raises these with messages that

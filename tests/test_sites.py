@@ -1,0 +1,87 @@
+"""sites.yaml is what params.yaml and conf/seeds.yaml give (scanloc.sites), so dvc.yaml runs
+the one chain on every site; a site it does not list is refused under DVC."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from scanloc.sites import SITES, check_listed, expected_text, pipeline_vars, site_kinds
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+RUNS = {
+    "runs": {
+        "map": {"localized": ["drive", "kidnap"], "over_filter_seeds": []},
+        "log": {"localized": ["real"], "over_filter_seeds": ["real"]},
+        "bag": {"localized": ["real"], "over_filter_seeds": []},
+    },
+    "odometry": ["wheel", "laser"],
+    "paper_cnn_runs": {"map": "m1", "runs": ["drive"]},
+}
+PARAMS = {
+    "bags": {"robot": {}},
+    "maps": {"m1": {}, "m2": {}},
+    "real_logs": {"aces": {}},
+}
+
+
+def test_the_committed_sites_yaml_is_what_params_yaml_gives() -> None:
+    assert (REPO_ROOT / SITES).read_text() == expected_text(REPO_ROOT), (
+        "sites.yaml is stale: run `python -m scanloc.sites` (or `make repro`)"
+    )
+
+
+def test_sites_come_in_params_order_maps_logs_bags_whatever_the_file_order() -> None:
+    assert site_kinds(PARAMS) == {"m1": "map", "m2": "map", "aces": "log", "robot": "bag"}
+    variables = pipeline_vars(PARAMS, RUNS, {"map1_small": "m1"})
+    assert variables["site_list"] == "{m1:map,m2:map,aces:log,robot:bag}"
+    assert list(variables["scan_sets"]) == [
+        "map1_small",
+        "m1_val",
+        "m2_val",
+        "aces_val",
+        "robot_val",
+    ]
+    assert variables["sites"]["aces"] == {"kind": "log", "site_scans": "data/scans/aces_mapping"}
+    assert variables["sites"]["robot"]["site_scans"] == "data/scans/robot_val"
+
+
+def test_jobs_are_each_sites_localized_runs_the_paper_cnns_and_the_filter_seed_runs() -> None:
+    jobs = pipeline_vars(PARAMS, RUNS, {})["jobs"]
+    assert list(jobs) == [
+        "m1-drive", "m1-kidnap", "m2-drive", "m2-kidnap", "aces-real", "robot-real",
+        "cnn-drive", "seeds-aces-real-wheel", "seeds-aces-real-laser",
+    ]  # fmt: skip
+    assert jobs["aces-real"] == {
+        "stage": "localize", "site": "aces", "kind": "log", "run": "aces_real",
+        "odometry": "wheel", "model": "models/scanlocnet/aces", "aux": "data/scans/aces_val",
+        "out": "reports/localize/aces_real",
+    }  # fmt: skip
+    assert jobs["cnn-drive"]["out"] == "reports/localize_cnn/m1_drive"
+    assert jobs["cnn-drive"]["model"] == "models/cnn1d_200k"
+    seeds = jobs["seeds-aces-real-laser"]
+    assert (seeds["stage"], seeds["odometry"]) == ("localize_seeds", "laser")
+    assert seeds["out"] == "reports/localize_seeds/aces_real_laser"
+
+
+def test_a_name_used_by_two_sites_and_a_pipeline_without_maps_are_refused() -> None:
+    with pytest.raises(ValueError, match=r"'bags\.m1': the name is already a map site"):
+        site_kinds({"maps": {"m1": {}}, "bags": {"m1": {}}})
+    with pytest.raises(ValueError, match="field 'maps': expected at least one map"):
+        site_kinds({"real_logs": {"aces": {}}})
+    with pytest.raises(ValueError, match="field 'real_logs': expected a mapping"):
+        site_kinds({"maps": {"m1": {}}, "real_logs": ["aces"]})
+
+
+def test_a_site_sites_yaml_does_not_list_is_refused_under_dvc_only(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    shutil.copy(REPO_ROOT / SITES, tmp_path / SITES)
+    monkeypatch.delenv("DVC_STAGE", raising=False)
+    check_listed("office", tmp_path)  # by hand: any site
+    monkeypatch.setenv("DVC_STAGE", "maps@office")
+    check_listed("sparse_obstacles", tmp_path)
+    with pytest.raises(ValueError, match=r"expected the site 'office'.*python -m scanloc\.sites"):
+        check_listed("office", tmp_path)
