@@ -330,7 +330,7 @@ def pipeline_sizes(map_name: str, profile: str, real_log: bool = False) -> Pipel
     """What the later stages allocate for map `map_name` at `profile`, read from their own
     configs as DVC composes them: the scans datasets of this map (its validation scans, and
     Table 1's where they are drawn on it), the learned model's training scans and pose grid
-    (`real_log`: as real_train and bag_train train it), and whether some localizer builds
+    (`real_log`: as a log's or a bag's training does), and whether some localizer builds
     amcl's beam-model range table."""
 
     def conf(name: str, *overrides: str) -> DictConfig:
