@@ -77,10 +77,14 @@ def test_laptop_stretches_leave_room_to_converge_and_confirm() -> None:
 
 
 def test_the_pipeline_runs_the_evaluation_set_and_scores_only_it() -> None:
+    """conf/seeds.yaml `runs` is the one list (dvc.yaml reads it through `vars`): a map makes a
+    run per conf/run file, localizes and scores the evaluation runs, never a tune run."""
     stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
-    evaluate = yaml.safe_load((CONF / "evaluate.yaml").read_text())
-    assert set(stages["trajectory"]["matrix"]["run"]) == set(_runs())
-    localized = set(stages["localize"]["matrix"]["run"])
-    assert set(evaluate["seed_runs"]) <= localized and set(evaluate["runs"]) <= localized
-    assert not any(r.startswith("tune") for r in evaluate["seed_runs"] + evaluate["runs"])
-    assert len(evaluate["seed_runs"]) >= 5
+    assert stages["trajectory"]["matrix"]["run"] == "${runs.map.made}"
+    runs = yaml.safe_load((CONF / "seeds.yaml").read_text())["runs"]
+    assert set(runs["map"]["made"]) == set(_runs())
+    for kind in runs.values():
+        scored = kind["scored_over_seeds"] + kind["localized"] + kind["over_filter_seeds"]
+        assert set(scored) <= set(kind["made"]), kind
+        assert not any(r.startswith("tune") for r in scored)
+    assert len(runs["map"]["scored_over_seeds"]) >= 5
