@@ -180,12 +180,12 @@ def test_smoke_repro_writes_the_contract_artifacts(smoke_repo: Path) -> None:
     assert "http://" not in html and "https://" not in html
     markdown = (smoke_repo / "reports/report.md").read_text()
     for spec in SECTIONS:
-        if "{name}" in spec.id:  # the per-map sections, checked below
+        if "{name}" in spec.id:  # the per-site sections, checked below
             continue
         assert f'id="{spec.id}"' in html, spec.id
         assert spec.title in markdown, spec.title
-    for name in (*PAPER_MAPS, *EXTRA_MAPS):  # one section per map
-        assert f'<h2 id="map-{name}">Map {name}</h2>' in html, name
+    for name in (*PAPER_MAPS, *EXTRA_MAPS):  # one section per site
+        assert f'<h2 id="site-{name}">Site {name} (map)</h2>' in html, name
 
 
 def test_smoke_metrics_hold_every_contract_metric(smoke_repo: Path) -> None:
@@ -258,7 +258,8 @@ def test_smoke_repro_runs_the_real_log(smoke_repo: Path) -> None:
     meta = json.loads((smoke_repo / "data/trajectories/intel_real/meta.json").read_text())
     assert meta["num_steps"] == 50 and meta["num_beams"] == 180  # the evaluated half
     html = (smoke_repo / "reports/report.html").read_text()
-    assert 'id="real-data"' in html and "intel" in html and "sim-to-real" in html
+    log_section = html.split('<h2 id="site-intel">Site intel (log)</h2>', 1)[1].split("<h2", 1)[0]
+    assert "sim-to-real" in log_section and "intel_real" in log_section
 
 
 def test_scans_are_byte_reproducible_from_scratch(smoke_repo: Path, tmp_path: Path) -> None:

@@ -36,7 +36,7 @@ CONTEXT = {
     "profile": "smoke",
     "params": {"profile": "smoke", "seed": 0},
     "git_commit": "abc123",
-    "maps": ["sparse_obstacles", "simple_rooms"],
+    "sites": {"sparse_obstacles": "map", "simple_rooms": "map"},
 }
 REPO_ROOT = Path(__file__).resolve().parents[1]
 REPORT_CFG = yaml.safe_load((REPO_ROOT / "conf/report.yaml").read_text())
@@ -192,12 +192,13 @@ def built(tmp_path_factory) -> Path:
 # ---------------------------------------------------------------- structure
 
 
-def registry_headings(maps: list[str]) -> list[tuple[str, str]]:
-    """(id, title) of every section the registry makes for `maps`, in its order."""
+def registry_headings(sites: dict[str, str]) -> list[tuple[str, str]]:
+    """(id, title) of every section the registry makes for `sites`, in its order."""
     headings = []
     for spec in SECTIONS:
-        for name in maps if "{name}" in spec.id else [""]:
-            headings.append((spec.id.format(name=name), spec.title.format(name=name)))
+        for name, kind in sites.items() if "{name}" in spec.id else [("", "")]:
+            names = {"name": name, "kind": kind}
+            headings.append((spec.id.format(**names), spec.title.format(**names)))
     return headings
 
 
@@ -208,7 +209,7 @@ def headings(text: str) -> list[tuple[str, str]]:
 def test_report_shows_the_registrys_sections_in_order_in_both_renderings(built: Path) -> None:
     page = (built / "reports/report.html").read_text(encoding="utf-8")
     md = (built / "reports/report.md").read_text(encoding="utf-8")
-    expected = registry_headings(CONTEXT["maps"])
+    expected = registry_headings(CONTEXT["sites"])
     assert headings(page) == expected
     assert headings(md) == expected
     assert re.findall(r'<a href="#([^"]+)">', page) == [i for i, _ in expected]  # the nav
@@ -279,8 +280,8 @@ def test_report_content(built: Path) -> None:
     assert "<td>simple_rooms</td><td>not trained</td>" in learned
     assert (built / "reports/figures/kidnap_errors_sparse_obstacles.png").is_file()
     assert "simple_rooms_kidnap: no trajectory or localizer tables." in page
-    for name in CONTEXT["maps"]:
-        assert f'<h2 id="map-{name}">Map {name}</h2>' in page
+    for name in CONTEXT["sites"]:
+        assert f'<h2 id="site-{name}">Site {name} (map)</h2>' in page
     md = (built / "reports/report.md").read_text(encoding="utf-8")
     images = re.findall(r"!\[[^\]]*\]\((figures/[^)]+\.png)\)", md)
     assert len(images) >= 6 and all((built / "reports" / img).is_file() for img in images)
@@ -623,7 +624,7 @@ def test_report_renders_offline_in_chromium(built: Path, tmp_path: Path) -> None
     assert all(complete and width > 0 and height > 0 for complete, width, height, _ in images)
     assert all(shown <= 1100 for *_, shown in images)  # scaled to the column, no overflow
     assert found["scrollWidth"] <= 1366  # no horizontal scrolling on a laptop screen
-    assert found["sections"] == [i for i, _ in registry_headings(CONTEXT["maps"])]
+    assert found["sections"] == [i for i, _ in registry_headings(CONTEXT["sites"])]
     remote = [u for u in found["requests"] if not u.startswith(("file:", "data:", "about:"))]
     assert remote == []
     assert not [m for m in found["messages"] if "Content Security Policy" in m]

@@ -17,7 +17,7 @@ from scanloc.report.artifacts import Artifacts, with_timings
 from scanloc.report.context import ReportContext
 from scanloc.report.localizers import Localizers
 from scanloc.report.render.document import Builder, Para, Table
-from scanloc.report.sections import bags
+from scanloc.report.sections import sites
 from scanloc.report.sections.registry import SECTIONS
 from scanloc.trajectory.format import Trajectory, save_trajectory
 
@@ -63,24 +63,22 @@ def context(root: Path, bag_entries: dict, runs: list[str]) -> ReportContext:
         localizers=Localizers.load(),
         verdicts=[],
         legend={},
-        run={"profile": "smoke", "bags": list(bag_entries)},
+        run={"profile": "smoke", "sites": dict.fromkeys(bag_entries, "bag")},
         figure_localizers=[],
+        site_runs={"bag": ["real"]},
     )
 
 
 def blocks(ctx: ReportContext) -> list:
-    (section,) = bags.SECTION.build(ctx, bags.SECTION)
-    assert (section.id, section.title) == ("bags", "Your bags")
+    (section,) = sites.SECTION.build(ctx, sites.SECTION)
+    (name,) = ctx.sites
+    assert (section.id, section.title) == (f"site-{name}", f"Site {name} (bag)")
     return section.blocks
 
 
-def test_the_section_comes_just_before_provenance() -> None:
+def test_the_site_sections_come_just_before_provenance() -> None:
     ids = [spec.id for spec in SECTIONS]
-    assert ids[-2:] == ["bags", "provenance"]
-
-
-def test_no_bags_is_one_line(tmp_path: Path) -> None:
-    assert blocks(context(tmp_path, {}, [])) == [Para(bags.NO_BAGS)]
+    assert ids[-2:] == ["site-{name}", "provenance"]
 
 
 def test_a_bag_with_truth_shows_its_table2_figures(tmp_path: Path) -> None:
@@ -93,7 +91,7 @@ def test_a_bag_with_truth_shows_its_table2_figures(tmp_path: Path) -> None:
     (tmp_path / "reports/localize_timing").mkdir(parents=True)
     (tmp_path / "reports/localize_timing/office_real.json").write_text(json.dumps(timing))
     found = blocks(context(tmp_path, {"office": {"bag": "b"}}, ["office_real"]))
-    table2, modern = [b for b in found if isinstance(b, Table)]
+    table2, modern, _ = [b for b in found if isinstance(b, Table)]
     assert table2.header[:3] == ["method", "x error mean [m]", "x error std [m]"]
     assert [row[:3] for row in table2.rows] == [["amcl", "0.1000", "0.0000"]]
     assert modern.header[-1] == "time per scan [ms]" and modern.rows[0][-1] == "4"

@@ -53,7 +53,8 @@ def report_md(tmp_path_factory) -> tuple[str, float]:
         scores=scores,
     )
     right = np.arange(len(truth)) % 3 != 0
-    build(root, CONTEXT | {"real_logs": ["intel", "fr079"]})  # fr079: no ablation files
+    sites = CONTEXT["sites"] | {"intel": "log", "fr079": "log"}
+    build(root, CONTEXT | {"sites": sites})  # fr079: no ablation files
     text = (root / "reports/report.md").read_text()
     return text, expected_calibration_error(scores[:, 0], right)
 

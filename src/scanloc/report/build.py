@@ -58,9 +58,9 @@ def build_report(
     <out_dir>/figures/*.png from the artifacts under `root`; return the headline metrics.
 
     context: {"profile": str, "params": dict (the run's knobs), "git_commit": str | None,
-    "sites": {site: kind}, "maps", "real_logs", "bags": [the sites of each kind, in order]};
+    "sites": {site: kind, in params.yaml's order}};
     report_cfg: conf/report.yaml (`claims`, `seed_spread`, `inconclusive_sigmas`,
-    `figure_localizers`); localizer_conf: the localizer configs (conf/localizer).
+    `figure_localizers`, `site_runs`); localizer_conf: the localizer configs (conf/localizer).
     """
     root, out_dir = Path(root), Path(out_dir)
     artifacts = Artifacts.load(root)
@@ -77,6 +77,7 @@ def build_report(
         legend=verdict_legend(claim_config),
         run=context,
         figure_localizers=[str(name) for name in report_cfg["figure_localizers"]],
+        site_runs={kind: list(runs) for kind, runs in report_cfg["site_runs"].items()},
     )
     sections = build_sections(ctx)
     b = ctx.builder

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from scanloc.report.artifacts import Artifacts
@@ -17,8 +17,7 @@ from scanloc.report.render.document import Builder, Section
 class ReportContext:
     """The figure writer, the loaded artifacts, the localizer catalog, the claims' verdicts
     and their legend, and the run's context: {"profile", "params" (the run's knobs),
-    "git_commit", "sites" ({site: kind}), "maps", "real_logs", "bags" (the sites of each
-    kind, in order)}."""
+    "git_commit", "sites" ({site: kind}, in order)}."""
 
     builder: Builder
     artifacts: Artifacts
@@ -27,14 +26,24 @@ class ReportContext:
     legend: Mapping[str, str]
     run: Mapping[str, Any]
     figure_localizers: list[str]  # the localizers drawn over a map (conf/report.yaml)
+    # {kind: the runs a site section tabulates, its first drawn over the map} (conf/report.yaml)
+    site_runs: Mapping[str, list[str]] = field(default_factory=dict)
+
+    @property
+    def sites(self) -> dict[str, str]:
+        """{site: kind} in the run's order (the paper's map 1 alone when the run names none)."""
+        return dict(self.run.get("sites") or {MAP1: "map"})
+
+    def of_kind(self, kind: str) -> list[str]:
+        return [site for site, of in self.sites.items() if of == kind]
 
     @property
     def maps(self) -> list[str]:
-        return list(self.run.get("maps") or [MAP1])
+        return self.of_kind("map")
 
     @property
     def real_logs(self) -> list[str]:
-        return list(self.run.get("real_logs") or [])
+        return self.of_kind("log")
 
     @property
     def profile(self) -> str:

@@ -51,9 +51,6 @@ def main(cfg: DictConfig) -> None:
             "params": run_params(profile, sites),
             "git_commit": git_commit(Path("."), [str(p) for p in cfg.source_paths]),
             "sites": sites,
-            "maps": [site for site, kind in sites.items() if kind == "map"],
-            "real_logs": [site for site, kind in sites.items() if kind == "log"],
-            "bags": [site for site, kind in sites.items() if kind == "bag"],
         }
         headline = build_report(Path("."), Path(cfg.out_dir), context, to_dict(cfg))
         write_json(Path(cfg.summary_path), headline)

@@ -1,9 +1,8 @@
-"""Section "Your bags": every `bags:` entry of params.yaml (your robot's ROS bags, docs/bags.md)
-and how scanloc's localizers did on its run <name>_real. With ground truth: the Table 2 figures
-and the modern metrics, as for any run. Without: accuracy cannot be scored, so the section
-shows what can be, speed (time per scan) and consistency (how far each localizer's estimates
-lie from global amcl's: localizers that agree are either all right or all wrong the same way).
-"""
+"""What a ROS bag's site section adds (report/sections/sites.py): where its map came from,
+and, for a bag without ground truth, what can be scored instead of accuracy: speed (time per
+scan) and consistency (how far each localizer's estimates lie from global amcl's: localizers
+that agree are either all right or all wrong the same way). A bag with truth is scored like
+any run (the site section's tables)."""
 
 from __future__ import annotations
 
@@ -15,19 +14,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from scanloc.evaluate.table2 import MODERN_COLUMNS, TABLE2_COLUMNS, TIME_COLUMN, format_rows
+from scanloc.evaluate.table2 import TIME_COLUMN
 from scanloc.report.artifacts import LOCALIZE_DIRS, TRAJECTORIES, localize_timings
-from scanloc.report.context import ReportContext, SectionSpec
+from scanloc.report.context import ReportContext
 from scanloc.report.render.document import Para, Section, Table
 from scanloc.report.render.tables import MISSING, fixed
 
 REFERENCE = "amcl_global"  # the estimates the others are compared with, without truth
-NO_BAGS = "No bags: see docs/sites.md, 'Your own bag'."
-
-
-def bag_names(ctx: ReportContext) -> list[str]:
-    """The bag sites of the run (the report stage's `sites`)."""
-    return list(ctx.run.get("bags") or [])
 
 
 def estimates(root: Path, run: str) -> dict[str, pd.DataFrame]:
@@ -65,20 +58,8 @@ def split_sentence(meta: Mapping[str, Any]) -> str:
     )
 
 
-def _with_truth(
-    section: Section, name: str, meta: Mapping[str, Any], metrics: Mapping[str, Mapping[str, Any]]
-) -> None:
-    section.blocks.append(
-        Para(
-            f"{name}: with ground truth, so scored like any run (paper Table 2, then modern). "
-            + split_sentence(meta)
-        )
-    )
-    section.blocks.append(Table(*format_rows(metrics, TABLE2_COLUMNS)))
-    section.blocks.append(Table(*format_rows(metrics, (*MODERN_COLUMNS, TIME_COLUMN))))
-
-
-def _without_truth(section: Section, root: Path, name: str, run: str) -> None:
+def without_truth(section: Section, root: Path, name: str, run: str) -> None:
+    """Speed and agreement with the reference, where there is no truth to score against."""
     section.blocks.append(
         Para(
             f"{name}: no ground truth, so only consistency and speed can be scored, not "
@@ -109,34 +90,24 @@ def _without_truth(section: Section, root: Path, name: str, run: str) -> None:
     section.blocks.append(Table(header, rows))
 
 
-def build(ctx: ReportContext, spec: SectionSpec) -> list[Section]:
-    section = spec.section()
-    names = bag_names(ctx)
-    if not names:
-        section.blocks.append(Para(NO_BAGS))
-        return [section]
-    section.blocks.append(
-        Para(
-            "Beyond the paper: your robot's ROS bags (params.yaml `bags`, docs/bags.md), each "
-            "read into the run <name>_real and localized by the same stages as a real log."
-        )
-    )
-    root = ctx.builder.root
-    for name in names:
-        run = f"{name}_real"
-        meta_path = root / TRAJECTORIES / run / "meta.json"
-        if not meta_path.is_file():
-            section.blocks.append(Para(f"{name}: not read yet (no {TRAJECTORIES / run})."))
-            continue
-        meta = json.loads(meta_path.read_text())
-        metrics = ctx.artifacts.localization.get(run) or {}
-        if meta.get("has_truth") and metrics:
-            _with_truth(section, name, meta, metrics)
-        elif meta.get("has_truth"):
-            section.blocks.append(Para(f"{name}: not evaluated yet (no metrics for {run})."))
-        else:
-            _without_truth(section, root, name, run)
-    return [section]
+BAG_NOTE = (
+    "A ROS bag (params.yaml `bags`, docs/bags.md), read into the run <name>_real and "
+    "localized by the same stages as every site."
+)
 
 
-SECTION = SectionSpec("bags", "Your bags", build)
+def bag_blocks(ctx: ReportContext, section: Section, name: str) -> bool:
+    """Where the bag's map came from, and without truth its localizers' agreement and speed;
+    True when the bag has truth (then the site section's tables score it)."""
+    section.blocks.append(Para(BAG_NOTE))
+    run = f"{name}_real"
+    meta_path = ctx.builder.root / TRAJECTORIES / run / "meta.json"
+    if not meta_path.is_file():
+        section.blocks.append(Para(f"{name}: not read yet (no {TRAJECTORIES / run})."))
+        return False
+    meta = json.loads(meta_path.read_text())
+    section.blocks.append(Para(split_sentence(meta)))
+    if not meta.get("has_truth"):
+        without_truth(section, ctx.builder.root, name, run)
+        return False
+    return True

@@ -1,6 +1,8 @@
-"""Section "Real data": every localizer of the localize stage on a real laser log and on its
-simulated twin (the same poses and odometry, scans simulated in the map built from the log),
-side by side, so that the sim-to-real gap is one subtraction (stages/real.py makes both runs)."""
+"""What a CARMEN log's site section adds (report/sections/sites.py): how the log was split
+into the part that built the map and the scored part, every localizer on the real run and on
+its simulated twin (the same poses and odometry, scans simulated in the map built from the
+log) side by side, so that the sim-to-real gap is one subtraction (stages/real.py makes both
+runs), and the compared localizers over filter seeds."""
 
 from __future__ import annotations
 
@@ -8,13 +10,10 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-from scanloc.report.artifacts import TRAJECTORIES, estimate_tables, map_yaml
-from scanloc.report.context import ReportContext, SectionSpec
-from scanloc.report.render import localization_figures as figures
+from scanloc.report.artifacts import TRAJECTORIES
+from scanloc.report.context import ReportContext
 from scanloc.report.render.document import Para, Section, Table
 from scanloc.report.render.tables import converge_text, fixed
-from scanloc.trajectory.format import load_trajectory
-from scanloc.world.map_server import load_map
 
 # (metric, column title, digits or "%"), shown for the simulated and the real run
 COMPARED = (
@@ -150,71 +149,39 @@ def _table(methods: list[str], sim: Mapping[str, Any], real: Mapping[str, Any]) 
     return Table(header, rows)
 
 
-def build(ctx: ReportContext, spec: SectionSpec) -> list[Section]:
-    b = ctx.builder
-    section = spec.section()
-    section.blocks.append(
-        Para(
-            "Beyond the paper: real laser logs with corrected poses (CARMEN format, "
-            "params.yaml `real_logs`). Each log is split in time (conf/real.yaml `split`): one "
-            "part builds the map (log-odds occupancy mapping along the corrected poses), the "
-            "other is localized and scored, so that no scored scan went into the map; the "
-            "poses the map does not cover are counted, never dropped. The scored part gives a "
-            "real run (its scans, wheel and laser odometry), a simulated twin (the same poses "
-            "and odometry, scans simulated in the built map with the log's sensor and a "
-            "SICK-like noise model) and a kidnap run (the part cut and reordered); the mapping "
-            "part is the tune run, where settings are chosen (conf/localizer/amcl_real.yaml). "
-            "The learned localizer is trained on scans simulated in the built map only. Truth "
-            "is the log's corrected pose (a scan matcher's, itself accurate to a few "
-            "centimetres). Real minus simulated is the sim-to-real gap."
-        )
-    )
-    if not ctx.real_logs:
-        section.blocks.append(Para("No real logs in params.yaml `real_logs`."))
-        return [section]
-    methods = ctx.localizers.of_stage(REAL_STAGE)
-    for log in ctx.real_logs:
-        sim = ctx.artifacts.localization.get(f"{log}_sim") or {}
-        real = ctx.artifacts.localization.get(f"{log}_real") or {}
-        real_dir = b.root / TRAJECTORIES / f"{log}_real"
-        grid_yaml = map_yaml(b.root, log)
-        if not real or not (real_dir / "truth.npy").is_file() or not grid_yaml.is_file():
-            section.blocks.append(Para(f"{log}: not evaluated (no real run or metrics)."))
-            continue
-        grid = load_map(grid_yaml)
-        traj, _ = load_trajectory(real_dir)
-        meta = json.loads((real_dir / "meta.json").read_text())
-        width, height = grid.size_m
-        path_m = float(sum(((traj.truth[1:, :2] - traj.truth[:-1, :2]) ** 2).sum(axis=1) ** 0.5))
-        section.blocks.append(
-            Para(
-                f"{log} ({meta.get('log', '?')}): {len(traj.times)} scans of "
-                f"{meta.get('sensor', {}).get('num_beams', '?')} beams over "
-                f"{traj.times[-1]:.0f} s and {path_m:.0f} m of driving; built map "
-                f"{width:.1f} × {height:.1f} m at {grid.resolution:g} m."
-            )
-        )
-        tables = estimate_tables(b.root, f"{log}_real", ctx.figure_localizers)
-        if tables:
-            section.blocks.append(
-                b.figure(
-                    f"real_{log}.png",
-                    f"{log}, real scans: position estimates (red) against the corrected poses "
-                    "(blue) on the map built from the log.",
-                    lambda p, grid=grid, traj=traj, tables=tables: figures.plot_trajectories(
-                        grid, traj.truth, tables, p
-                    ),
-                )
-            )
-        section.blocks.append(Para(split_sentence(log, meta)))
-        section.blocks.append(_table(methods, sim, real))
+LOG_NOTE = (
+    "A CARMEN log with corrected poses (params.yaml `real_logs`), split in time "
+    "(conf/real.yaml `split`): one part builds the map (log-odds occupancy mapping along the "
+    "corrected poses), the other is localized and scored, so that no scored scan went into "
+    "the map; the poses the map does not cover are counted, never dropped. The scored part "
+    "gives a real run (its scans, wheel and laser odometry), a simulated twin (the same poses "
+    "and odometry, scans simulated in the built map with the log's sensor and a SICK-like "
+    "noise model) and a kidnap run (the part cut and reordered); the mapping part is the tune "
+    "run, where settings are chosen (conf/localizer/amcl_real.yaml). The learned localizer is "
+    "trained on scans simulated in the built map only. Truth is the log's corrected pose (a "
+    "scan matcher's, itself accurate to a few centimetres). Real minus simulated is the "
+    "sim-to-real gap."
+)
+
+
+def log_blocks(ctx: ReportContext, section: Section, log: str) -> bool:
+    """The log's split, its real run against its simulated twin, and its runs over seeds;
+    True: its runs have truth (the corrected poses), so the site section scores them."""
+    section.blocks.append(Para(LOG_NOTE))
+    real_dir = ctx.builder.root / TRAJECTORIES / f"{log}_real"
+    if not (real_dir / "meta.json").is_file():
+        section.blocks.append(Para(f"{log}: not read yet (no {TRAJECTORIES}/{log}_real)."))
+        return False
+    meta = json.loads((real_dir / "meta.json").read_text())
+    section.blocks.append(Para(split_sentence(log, meta)))
+    sim = ctx.artifacts.localization.get(f"{log}_sim") or {}
+    real = ctx.artifacts.localization.get(f"{log}_real") or {}
+    if real:
+        section.blocks.append(_table(ctx.localizers.of_stage(REAL_STAGE), sim, real))
         section.blocks.append(Para(_gap_sentence(log, sim, real)))
-        seeds = ctx.artifacts.real_seed_figures or {}
-        runs = {run: seeds[f"{log}_{run}"] for run in ("real", "kidnap") if f"{log}_{run}" in seeds}
-        if runs:
-            section.blocks.append(Para(SEEDS_NOTE))
-            section.blocks.append(seeds_table(runs))
-    return [section]
-
-
-SECTION = SectionSpec("real-data", "Real data", build)
+    seeds = ctx.artifacts.real_seed_figures or {}
+    runs = {run: seeds[f"{log}_{run}"] for run in ("real", "kidnap") if f"{log}_{run}" in seeds}
+    if runs:
+        section.blocks.append(Para(SEEDS_NOTE))
+        section.blocks.append(seeds_table(runs))
+    return True

@@ -4,17 +4,15 @@ from __future__ import annotations
 
 from scanloc.report.context import SectionSpec
 from scanloc.report.sections import (
-    bags,
     claims,
     curves,
     global_localization,
     learned,
     localization,
     maps,
-    per_map,
     provenance,
-    real_data,
     real_learned,
+    sites,
     table1,
     table2,
 )
@@ -28,9 +26,7 @@ SECTIONS: tuple[SectionSpec, ...] = (
     claims.SECTION,
     learned.SECTION,
     global_localization.SECTION,
-    real_data.SECTION,
     real_learned.SECTION,
-    per_map.SECTION,  # one per map of params.yaml `maps`
-    bags.SECTION,  # one block per params.yaml `bags` entry
+    sites.SECTION,  # one per site: map, log or bag (params.yaml)
     provenance.SECTION,
 )
