@@ -1,7 +1,8 @@
 """The one list of localizers: every conf/localizer/<name>.yaml, read with its metadata.
 
-A localizer config declares, beside its own parameters, what the pipeline and the report need
-to know of it:
+A localizer config declares, in its `meta` section, what the pipeline and the report need to
+know of it (its other sections are its parts' parameters, localize/kinds.py):
+- `name`: the file's name;
 - `kind`: the registered class or function that runs it (scanloc.localize.kinds);
 - `group`: `tracking` (starts from the true first pose), `global` (no initial pose), or
   `learned` (from each scan, or learned hypotheses tracked over time);
@@ -11,7 +12,8 @@ to know of it:
 - `global_table` (optional, false): whether the report's global-localization table lists it.
 Adding a localizer is adding one such file (plus, for a new kind, one registered class).
 A config may inherit from another through its Hydra defaults list (`defaults: [amcl, _self_]`):
-metadata is inherited too, unless the file sets its own.
+sections merge key by key as Hydra merges them, so metadata is inherited too, unless the file
+sets its own.
 """
 
 from __future__ import annotations
@@ -27,8 +29,7 @@ import yaml
 CONF_DIR = Path("conf/localizer")
 GROUPS = ("tracking", "global", "learned")
 STAGES = ("localize", "localize_cnn")
-# Keys of a localizer config that describe it rather than parametrise it.
-META_KEYS = ("name", "kind", "mode", "seed", "group", "note", "stages", "global_table")
+META_FIELDS = ("name", "kind", "group", "note", "stages", "global_table")
 
 
 @dataclass(frozen=True)
@@ -55,7 +56,7 @@ def _read(path: Path) -> dict[str, Any]:
 
 def raw_config(name: str, conf_dir: Path = CONF_DIR) -> dict[str, Any]:
     """conf/localizer/<name>.yaml merged over the configs its defaults list names (parents
-    first, `_self_` last), without interpolation: what Hydra composes, for top-level keys."""
+    first, `_self_` last), without interpolation: what Hydra composes."""
     path = conf_dir / f"{name}.yaml"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such localizer config")
@@ -63,35 +64,59 @@ def raw_config(name: str, conf_dir: Path = CONF_DIR) -> dict[str, Any]:
     merged: dict[str, Any] = {}
     for parent in own.pop("defaults", []) or []:
         if parent != "_self_":
-            merged.update(raw_config(str(parent), conf_dir))
-    merged.update(own)
-    return merged
+            merged = _merge(merged, raw_config(str(parent), conf_dir))
+    return _merge(merged, own)
+
+
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """`over` merged into `base`, mappings key by key (as OmegaConf merges)."""
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
 
 
 def _info(name: str, cfg: Mapping[str, Any], path: Path) -> LocalizerInfo:
+    meta = cfg.get("meta")
+    if not isinstance(meta, Mapping):
+        raise ValueError(f"{path}: section 'meta' missing (expected {', '.join(META_FIELDS)})")
+    unknown = sorted(set(meta) - set(META_FIELDS))
+    if unknown:
+        raise ValueError(
+            f"{path}: section 'meta': unknown key {unknown[0]!r}; known: {', '.join(META_FIELDS)}"
+        )
+
     def need(key: str, expected: str) -> Any:
-        if key not in cfg:
-            raise ValueError(f"{path}: field '{key}' missing (expected {expected})")
-        return cfg[key]
+        if key not in meta:
+            raise ValueError(f"{path}: section 'meta': key '{key}' missing (expected {expected})")
+        return meta[key]
 
     kind = str(need("kind", "the localizer's kind"))
     group = str(need("group", f"one of {list(GROUPS)}"))
     if group not in GROUPS:
-        raise ValueError(f"{path}: field 'group': expected one of {list(GROUPS)}, got {group!r}")
+        raise ValueError(
+            f"{path}: section 'meta': key 'group': expected one of {list(GROUPS)}, got {group!r}"
+        )
     stages = need("stages", f"a list of stages from {list(STAGES)}, or []")
     if not isinstance(stages, list) or any(s not in STAGES for s in stages):
         raise ValueError(
-            f"{path}: field 'stages': expected a list of {list(STAGES)}, got {stages!r}"
+            f"{path}: section 'meta': key 'stages': expected a list of {list(STAGES)}, "
+            f"got {stages!r}"
         )
-    if cfg.get("name") != name:
-        raise ValueError(f"{path}: field 'name': expected {name!r}, got {cfg.get('name')!r}")
+    if meta.get("name") != name:
+        raise ValueError(
+            f"{path}: section 'meta': key 'name': expected {name!r}, got {meta.get('name')!r}"
+        )
     return LocalizerInfo(
         name=name,
         kind=kind,
         group=group,
         note=str(need("note", "one line for the report")),
         stages=tuple(stages),
-        global_table=bool(cfg.get("global_table", False)),
+        global_table=bool(meta.get("global_table", False)),
     )
 
 

@@ -1,9 +1,17 @@
-"""Localizer parameter dataclasses from config mappings, with errors that name the key."""
+"""Localizer parameter dataclasses from config mappings, with errors that name the key.
+
+A localizer config (conf/localizer/<name>.yaml) is written in sections, each read by the part
+that owns it (`meta` by the catalog, `filter` / `motion` / `sensor` by the particle filter,
+`proposal` / `mixing` / `weighting` by the registered part their `type` names, `learned` and
+`verifier` by the learned localizer): `parse_section` reads one into its part's dataclass, and
+an unknown key is an error naming the file, the section and the key. A part's defaults live
+in its dataclass only; a config writes what departs from them.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import fields
+from dataclasses import MISSING, fields
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -18,7 +26,7 @@ def params_from_config(
     for a float). Raises ValueError for an unknown key (listing the known ones) or a wrong type,
     naming the `what` parameter.
     """
-    known = {f.name for f in fields(cls)}  # type: ignore[arg-type]
+    known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
     skipped = set(skip)
     values: dict[str, Any] = {}
     for key, value in config.items():
@@ -28,8 +36,54 @@ def params_from_config(
             raise ValueError(
                 f"unknown {what} parameter {key!r}; known parameters: {', '.join(sorted(known))}"
             )
-        values[key] = _coerce(what, key, value, getattr(cls, key))
+        values[key] = _coerce(what, key, value, _default(known[key]))
     return cls(**values)
+
+
+def parse_section(cls: type[T], config: Mapping[str, Any], section: str, where: str) -> T:
+    """`cls` from `config[section]` (absent: every default). Errors name `where` (the config
+    file), the section and the key: an unknown key, a value of the wrong type, or a value
+    the part rejects."""
+    values = section_values(config, section, where)
+    known = sorted(f.name for f in fields(cls))  # type: ignore[arg-type]
+    for key in values:
+        if key not in known:
+            raise ValueError(
+                f"{where}: section '{section}': unknown key {key!r}; known: {', '.join(known)}"
+            )
+    try:
+        return params_from_config(cls, values, "the")
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"{where}: section '{section}': {err}") from None
+
+
+def section_values(config: Mapping[str, Any], section: str, where: str) -> dict[str, Any]:
+    """The mapping `config[section]` ({} when absent), or an error naming the file."""
+    values = config.get(section)
+    if values is None:
+        return {}
+    if not isinstance(values, Mapping):
+        raise ValueError(f"{where}: section '{section}': expected a mapping, got {values!r}")
+    return dict(values)
+
+
+def check_sections(config: Mapping[str, Any], known: Iterable[str], where: str, reader: str) -> None:
+    """Every top-level key of `config` is a section `reader` reads, or an error naming it."""
+    allowed = sorted(known)
+    for key in config:
+        if key not in allowed:
+            raise ValueError(
+                f"{where}: section '{key}': {reader} does not read it; its sections: "
+                f"{', '.join(allowed)}"
+            )
+
+
+def _default(field: Any) -> object:
+    if field.default is not MISSING:
+        return field.default
+    if field.default_factory is not MISSING:
+        return field.default_factory()
+    raise TypeError(f"field {field.name!r} has no default to take its type from")
 
 
 def _coerce(what: str, key: str, value: object, default: object) -> object:

@@ -1,8 +1,11 @@
 """Hybrid localization: amcl with the learned localizer's hypotheses as its proposal.
 
-Two parts plugged into amcl's particle filter (localize/mcl/): `LearnedProposal`, the
-proposal, and `ImportanceWeights`, how the particles it proposes are weighted; conf/localizer/
-hybrid.yaml sets the rest (resample and estimate on every update).
+Parts plugged into amcl's particle filter (localize/mcl/), each registered under the `type` a
+localizer config names: `LearnedProposal`, the proposal (`proposal: {type: learned}`);
+`ImportanceWeights`, how the particles it proposes are weighted (`weighting: {type:
+importance}`); and how many it proposes at an update, the mixing (`mixing: {type: constant}`,
+`adaptive` or `verified_gate`). conf/localizer/hybrid.yaml sets the rest (resample and estimate
+on every update).
 
 amcl finds itself slowly (global localization from a uniform cloud) and rarely recovers from a
 kidnap (random free poses seldom land near the truth); the learned localizer is global but
@@ -42,23 +45,23 @@ The error this leaves is bounded: r is a ratio of two functions affine in b, so
 two numbers in [0, 1]); and r always lies between (1 - ε)/α and ε u / (β q), whatever b̂.
 tests/test_hybrid_posterior.py checks the weights against a brute-force Bayes filter on a grid.
 
-Adaptive mixing (`adaptive_mixing`): the share follows the scan likelihood as in augmented MCL.
-Short- and long-term averages of the mean sensor factor (alphas `adaptive_alpha_fast` /
-`_slow`) give lost = 1 - w_fast / w_slow; the share is φ · clip((lost - τ) / (1 - τ), 0, 1)
-with the threshold τ = `adaptive_threshold`, so while the filter is localized (lost ≤ τ) no
+Adaptive mixing (`mixing: {type: adaptive}`): the share follows the scan likelihood as in
+augmented MCL. Short- and long-term averages of the mean sensor factor (rates `alpha_fast` /
+`alpha_slow`, mcl/averages.py) give lost = 1 - w_fast / w_slow; the share is
+φ · clip((lost - τ) / (1 - τ), 0, 1) with the threshold τ = `threshold`, so while the filter is localized (lost ≤ τ) no
 proposal particle is drawn, the update is amcl's, and the network does not run.
 
-The verified gate (`verified_gate`): the share is φ only when the map says the filter is
+The verified gate (`mixing: {type: verified_gate}`): the share is φ only when the map says the filter is
 elsewhere, else 0. At each update the filter's estimate (the predicted particles' weighted
 mean) and the network's hypotheses are refined against the map and scored by the share of the
 scan they explain (the verifier of hypothesis_verification.py); the gate opens when a
-hypothesis away from the estimate explains at least `gate_margin` more of the scan, on
-`gate_persistence` updates in a row. On real logs the likelihood ratio is no such signal: a
+hypothesis away from the estimate explains at least `margin` more of the scan, on
+`persistence` updates in a row. On real logs the likelihood ratio is no such signal: a
 peaky sensor model's likelihood falls at every pose the map covers poorly. One scan is not
 enough either: where the map misses what the laser sees, a look-alike elsewhere can explain
 more of a scan than the true pose for a scan or two, and proposed particles there capture the
 filter (120 beams' likelihood ratio outweighs any kidnap prior). After a kidnap the mismatch
-lasts. For the first `gate_warmup` updates the gate stays open (the share is φ): at a global
+lasts. For the first `warmup` updates the gate stays open (the share is φ): at a global
 start the filter may settle on a look-alike that explains the scan almost as well as the
 truth (fr079's parallel corridors), which no margin tells apart but a few more scans of
 proposals do. The network runs on every update (its cost is not amortised).
@@ -67,71 +70,119 @@ proposals do. The network runs on every update (its cost is not amortised).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 
-from scanloc.localize.config_params import params_from_config
-from scanloc.localize.hypothesis_verification import HypothesisVerifier
+from scanloc.localize.hypothesis_verification import HypothesisVerifier, VerifierParams
+from scanloc.localize.mcl.averages import LikelihoodAverages
+from scanloc.localize.mcl.parts import MIXINGS, PROPOSALS, WEIGHTINGS, PartsContext
 from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.pose import compose, wrap_angle, wrap_pi
 
 
 @dataclass(frozen=True)
-class HybridParams:
-    """The learned proposal and how the filter uses it (see the module docstring)."""
+class LearnedProposalParams:
+    """The `proposal` section of type `learned`: the network's standard deviations times
+    `std_inflation`, at least `min_std_xy` / `min_std_theta` (m, rad); a defensive
+    `uniform_share` of amcl's uniform proposal; the components weighted by the network's
+    probabilities (`weights_from: network`) or by their verified scores (`score`, with
+    `learned.verified`). The hypotheses are the `learned` section's k best."""
 
-    k: int = 20
     std_inflation: float = 1.5
     min_std_xy: float = 0.1
     min_std_theta: float = 0.05
     uniform_share: float = 0.1
-    mixture_share: float = 0.05
-    kidnap_probability: float = 0.1
-    kernel_std_xy: float = 0.05
-    kernel_std_theta: float = 0.05
-    kernel_centres: int = 500
-    adaptive_mixing: bool = False
-    adaptive_alpha_slow: float = 0.05
-    adaptive_alpha_fast: float = 0.5
-    adaptive_threshold: float = 0.7
     weights_from: str = "network"
-    verified_gate: bool = False
-    gate_margin: float = 0.2
-    gate_persistence: int = 1
-    gate_warmup: int = 0
 
     def __post_init__(self) -> None:
         if self.weights_from not in ("network", "score"):
             raise ValueError(
                 f"weights_from must be 'network' or 'score', got {self.weights_from!r}"
             )
-        if self.k < 1 or self.std_inflation <= 0 or min(self.min_std_xy, self.min_std_theta) <= 0:
+        if self.std_inflation <= 0 or min(self.min_std_xy, self.min_std_theta) <= 0:
+            raise ValueError("need std_inflation > 0 and positive standard-deviation floors")
+        if not 0.0 <= self.uniform_share < 1.0:
+            raise ValueError(f"uniform_share must lie in [0, 1), got {self.uniform_share}")
+
+
+@dataclass(frozen=True)
+class ImportanceWeightParams:
+    """The `weighting` section of type `importance`: the prior probability per update of having
+    been carried elsewhere (`kidnap_probability`, ε), and the kernel density of the
+    motion-predicted particles (`kernel_std_xy` / `_theta`, at `kernel_centres` of them)."""
+
+    kidnap_probability: float = 0.3
+    kernel_std_xy: float = 0.05
+    kernel_std_theta: float = 0.05
+    kernel_centres: int = 500
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.kidnap_probability < 1.0:
             raise ValueError(
-                "need k >= 1, std_inflation > 0 and positive standard-deviation floors"
+                f"kidnap_probability must lie in [0, 1), got {self.kidnap_probability}"
             )
         if min(self.kernel_std_xy, self.kernel_std_theta) <= 0 or self.kernel_centres < 1:
             raise ValueError("need kernel_std_xy, kernel_std_theta > 0 and kernel_centres >= 1")
-        for name in ("uniform_share", "mixture_share", "kidnap_probability", "adaptive_threshold"):
-            if not 0.0 <= getattr(self, name) < 1.0:
-                raise ValueError(f"{name} must lie in [0, 1), got {getattr(self, name)}")
-        if not (0 < self.adaptive_alpha_slow <= 1 and 0 < self.adaptive_alpha_fast <= 1):
-            raise ValueError("adaptive_alpha_slow / _fast must lie in (0, 1]")
-        if self.verified_gate and self.adaptive_mixing:
-            raise ValueError("choose one of adaptive_mixing and verified_gate, not both")
-        if not 0.0 < self.gate_margin < 1.0:
-            raise ValueError(f"gate_margin must lie in (0, 1), got {self.gate_margin}")
-        if self.gate_persistence < 1 or self.gate_warmup < 0:
-            raise ValueError(
-                "need gate_persistence >= 1 and gate_warmup >= 0, got "
-                f"{self.gate_persistence}, {self.gate_warmup}"
-            )
 
-    @classmethod
-    def from_config(cls, config: Mapping[str, object]) -> HybridParams:
-        return params_from_config(cls, config, "hybrid proposal")
+
+def _check_share(share: float) -> None:
+    if not 0.0 <= share < 1.0:
+        raise ValueError(f"share must lie in [0, 1), got {share}")
+
+
+@dataclass(frozen=True)
+class ConstantMixingParams:
+    """The `mixing` section of type `constant`: φ, the share of the particle count drawn from
+    the proposal at every update."""
+
+    share: float = 0.05
+
+    def __post_init__(self) -> None:
+        _check_share(self.share)
+
+
+@dataclass(frozen=True)
+class AdaptiveMixingParams:
+    """The `mixing` section of type `adaptive`: φ scaled by how far the likelihood fell,
+    clip((lost - `threshold`) / (1 - `threshold`), 0, 1), lost from averages with rates
+    `alpha_slow` / `alpha_fast` (conf/localizer/hybrid_adaptive.yaml: how they were chosen)."""
+
+    share: float = 0.05
+    threshold: float = 0.3
+    alpha_slow: float = 0.05
+    alpha_fast: float = 0.8
+
+    def __post_init__(self) -> None:
+        _check_share(self.share)
+        if not 0.0 <= self.threshold < 1.0:
+            raise ValueError(f"threshold must lie in [0, 1), got {self.threshold}")
+        if not (0 < self.alpha_slow <= 1 and 0 < self.alpha_fast <= 1):
+            raise ValueError("alpha_slow / alpha_fast must lie in (0, 1]")
+
+
+@dataclass(frozen=True)
+class VerifiedGateParams:
+    """The `mixing` section of type `verified_gate`: φ while the gate is open, else 0; open when
+    a hypothesis away from the estimate explains `margin` more of the scan on `persistence`
+    updates in a row, and on the first `warmup` updates (conf/localizer/hybrid_real.yaml: how
+    they were chosen). Its verifier is the `verifier` section's."""
+
+    share: float = 0.2
+    margin: float = 0.4
+    persistence: int = 3
+    warmup: int = 20
+
+    def __post_init__(self) -> None:
+        _check_share(self.share)
+        if not 0.0 < self.margin < 1.0:
+            raise ValueError(f"margin must lie in (0, 1), got {self.margin}")
+        if self.persistence < 1 or self.warmup < 0:
+            raise ValueError(
+                f"need persistence >= 1 and warmup >= 0, got {self.persistence}, {self.warmup}"
+            )
 
 
 @numba.njit(cache=True, parallel=True)
@@ -176,7 +227,7 @@ class LearnedProposal:
         self,
         hypotheses_of: Callable[[np.ndarray], object],
         uniform: UniformProposal,
-        params: HybridParams,
+        params: LearnedProposalParams,
     ) -> None:
         self.hypotheses_of, self.uniform, self.params = hypotheses_of, uniform, params
         self.means = np.zeros((0, 3))
@@ -199,21 +250,21 @@ class LearnedProposal:
         hyp = self.hypotheses_of(self._scan)
         self._scan = None
         self.inferences += 1
-        keep = np.asarray(hyp.weights[0][: p.k]) > 0
+        keep = np.asarray(hyp.weights[0]) > 0
         if p.weights_from == "score":
             if hyp.scores is None:
                 raise ValueError(
-                    "hybrid proposal: weights_from 'score' needs verified hypotheses (a `verify` "
-                    "section in the localizer's config)"
+                    "proposal: weights_from 'score' needs verified hypotheses (`verified: true` "
+                    "in the localizer's `learned` section)"
                 )
-            weights = np.asarray(hyp.scores[0][: p.k], dtype=np.float64)
+            weights = np.asarray(hyp.scores[0], dtype=np.float64)
             keep &= weights > 0
         else:
-            weights = np.asarray(hyp.weights[0][: p.k], dtype=np.float64)
-        self.means = np.ascontiguousarray(hyp.poses[0][: p.k][keep])
+            weights = np.asarray(hyp.weights[0], dtype=np.float64)
+        self.means = np.ascontiguousarray(hyp.poses[0][keep])
         floor = np.array([p.min_std_xy, p.min_std_xy, p.min_std_theta])
         self.stds = np.ascontiguousarray(
-            np.maximum(p.std_inflation * hyp.stds[0][: p.k][keep], floor)
+            np.maximum(p.std_inflation * hyp.stds[0][keep], floor)
         )
         self.weights = weights[keep] / weights[keep].sum()
 
@@ -234,6 +285,10 @@ class LearnedProposal:
         share = self.params.uniform_share
         mixture = _mixture_density(poses, self.means, self.stds, self.weights)
         return (1.0 - share) * mixture + share * self.uniform.density(poses)
+
+    def counts(self) -> dict[str, int]:
+        """The network's runs."""
+        return {"n_network_runs": self.inferences}
 
 
 class VerifiedGate:
@@ -280,22 +335,73 @@ class VerifiedGate:
         return bool(away.any() and explained[1:][away].max() - explained[0] >= self.margin)
 
 
-class ImportanceWeights:
-    """The hybrid's weighting of proposed particles (see the module docstring): u(x) / q(x) for
-    the initialisation's and the recovery's, and the mixture weights of the motion-predicted
-    particles plus the proposal's share at an update. `gate` is needed with `verified_gate`."""
+class ConstantMixing:
+    """φ at every update."""
+
+    def __init__(self, params: ConstantMixingParams) -> None:
+        self.params = params
+        self.updates = self.mixed_updates = 0
+
+    def share(self, poses: np.ndarray, weights: np.ndarray) -> float:
+        self.updates += 1
+        share = self.decide(poses, weights)
+        self.mixed_updates += share > 0
+        return share
+
+    def decide(self, poses: np.ndarray, weights: np.ndarray) -> float:
+        return self.params.share
+
+    def observe_likelihood(self, w_avg: float) -> None:
+        """A constant share follows nothing."""
+
+    def counts(self) -> dict[str, int]:
+        """Updates, and those that drew proposed particles."""
+        return {"n_updates": self.updates, "n_mixed_updates": int(self.mixed_updates)}
+
+
+class AdaptiveMixing(ConstantMixing):
+    """φ scaled by how far the scan likelihood fell (augmented MCL's averages)."""
+
+    def __init__(self, params: AdaptiveMixingParams) -> None:
+        super().__init__(params)  # type: ignore[arg-type]
+        self.averages = LikelihoodAverages(params.alpha_slow, params.alpha_fast)
+
+    def decide(self, poses: np.ndarray, weights: np.ndarray) -> float:
+        p = self.params
+        scale = (self.averages.lost() - p.threshold) / (1.0 - p.threshold)  # type: ignore[attr-defined]
+        return p.share * min(max(scale, 0.0), 1.0)
+
+    def observe_likelihood(self, w_avg: float) -> None:
+        self.averages.follow(w_avg)
+
+
+class VerifiedGateMixing(ConstantMixing):
+    """φ while the verified gate is open or in the warm-up, else 0 (the module docstring)."""
 
     def __init__(
-        self, proposal: LearnedProposal, params: HybridParams, gate: VerifiedGate | None = None
+        self, params: VerifiedGateParams, proposal: LearnedProposal, gate: VerifiedGate
     ) -> None:
-        if params.verified_gate and gate is None:
-            raise ValueError("hybrid proposal: verified_gate needs a VerifiedGate")
-        self.proposal, self.params, self.gate = proposal, params, gate
+        super().__init__(params)  # type: ignore[arg-type]
+        self.proposal, self.gate = proposal, gate
+
+    def decide(self, poses: np.ndarray, weights: np.ndarray) -> float:
+        self.proposal.condition()
+        assert self.proposal.scan is not None
+        opens = self.gate.opens(self.proposal.scan, poses, weights, self.proposal.means)
+        warmup = self.params.warmup  # type: ignore[attr-defined]
+        return self.params.share if opens or self.updates <= warmup else 0.0
+
+
+class ImportanceWeights:
+    """The hybrid's weighting of proposed particles (see the module docstring): u(x) / q(x) for
+    the initialisation's and the recovery's, and bel⁻ / d for the union of the motion-predicted
+    particles and the mixing's proposed ones at an update."""
+
+    def __init__(self, proposal: LearnedProposal, params: ImportanceWeightParams) -> None:
+        self.proposal, self.params = proposal, params
         self.uniform = proposal.uniform
         p = params
         self.kernel_stds = np.array([p.kernel_std_xy, p.kernel_std_xy, p.kernel_std_theta])
-        self.w_slow = self.w_fast = 0.0
-        self.updates = self.mixed_updates = 0
 
     def _prior_over_proposal(self, poses: np.ndarray) -> np.ndarray:
         q = self.proposal.density(poses)
@@ -309,57 +415,12 @@ class ImportanceWeights:
         """Recovery poses stand for amcl's uniform injection: weighted u(x) / q(x)."""
         return self._prior_over_proposal(poses)
 
-    def observe_likelihood(self, w_avg: float) -> None:
-        """Follow the mean sensor factor of an update: the adaptive share's averages."""
-        p = self.params
-        self.w_slow = (
-            w_avg
-            if self.w_slow == 0.0
-            else self.w_slow + p.adaptive_alpha_slow * (w_avg - self.w_slow)
-        )
-        self.w_fast = (
-            w_avg
-            if self.w_fast == 0.0
-            else self.w_fast + p.adaptive_alpha_fast * (w_avg - self.w_fast)
-        )
-
-    def counts(self) -> dict[str, int]:
-        """Updates, those that drew proposed particles, and the network's runs."""
-        return {
-            "n_updates": self.updates,
-            "n_mixed_updates": self.mixed_updates,
-            "n_network_runs": self.proposal.inferences,
-        }
-
-    def share(self, poses: np.ndarray, weights: np.ndarray) -> float:
-        """φ; with adaptive mixing φ scaled by how far the likelihood fell; with the verified
-        gate φ or 0 (module doc)."""
-        p = self.params
-        if p.verified_gate:
-            self.proposal.condition()
-            assert self.gate is not None and self.proposal.scan is not None
-            opens = self.gate.opens(self.proposal.scan, poses, weights, self.proposal.means)
-            return p.mixture_share if opens or self.updates <= p.gate_warmup else 0.0
-        if not p.adaptive_mixing:
-            return p.mixture_share
-        lost = 1.0 - self.w_fast / self.w_slow if self.w_slow > 0.0 else 0.0
-        scale = (lost - p.adaptive_threshold) / (1.0 - p.adaptive_threshold)
-        return p.mixture_share * min(max(scale, 0.0), 1.0)
-
-    def predict(
-        self, poses: np.ndarray, weights: np.ndarray, rng: np.random.Generator
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Add the proposal's share of particles and multiply every carried weight by
-        bel⁻ / d (the sensor update follows); with no proposal particle, amcl's update."""
-        self.updates += 1
-        share = self.share(poses, weights)
-        if share <= 0:
-            return poses, weights
-        self.mixed_updates += 1
-        n, eps = len(poses), self.params.kidnap_probability
-        m = max(1, round(share * n))
-        extra = self.proposal.sample(m, rng)
-        union = np.ascontiguousarray(np.concatenate([poses, extra]))
+    def mixed_weights(
+        self, poses: np.ndarray, weights: np.ndarray, proposed: np.ndarray
+    ) -> np.ndarray:
+        """Every carried weight times bel⁻ / d (the sensor update follows)."""
+        n, m, eps = len(poses), len(proposed), self.params.kidnap_probability
+        union = np.ascontiguousarray(np.concatenate([poses, proposed]))
         alpha, beta = n / (n + m), m / (n + m)
         bel_motion = self.motion_density(poses, weights, union)
         prior = (1.0 - eps) * bel_motion + eps * self.uniform.density(union)
@@ -368,8 +429,7 @@ class ImportanceWeights:
             ratio = np.where(drawn > 0, prior / drawn, 0.0)
         new = np.concatenate([alpha * weights, np.full(m, beta / m)]) * ratio
         total = new.sum()
-        new = new / total if total > 0 else np.full(len(union), 1.0 / len(union))
-        return union, new
+        return new / total if total > 0 else np.full(len(union), 1.0 / len(union))
 
     def motion_density(self, poses: np.ndarray, weights: np.ndarray, at: np.ndarray) -> np.ndarray:
         """b̂ at `at`: the Gaussian kernel density (per m² rad) of the weighted particles, its
@@ -390,3 +450,44 @@ class ImportanceWeights:
             np.ascontiguousarray(stds),
             np.ascontiguousarray(centre_weights, dtype=np.float64),
         )
+
+
+@PROPOSALS.register("learned", LearnedProposalParams)
+def learned_proposal(params: LearnedProposalParams, context: PartsContext) -> LearnedProposal:
+    """The learned localizer's hypotheses of each scan (the `learned` section's model)."""
+    if context.hypotheses is None:
+        raise ValueError(f"{context.where}: section 'proposal': type 'learned' needs a `learned` section")
+    return LearnedProposal(context.hypotheses(), context.uniform, params)
+
+
+@WEIGHTINGS.register("importance", ImportanceWeightParams)
+def importance_weights(params: ImportanceWeightParams, context: PartsContext) -> ImportanceWeights:
+    return ImportanceWeights(_learned(context, "weighting", "importance"), params)
+
+
+@MIXINGS.register("constant", ConstantMixingParams)
+def constant_mixing(params: ConstantMixingParams, context: PartsContext) -> ConstantMixing:
+    return ConstantMixing(params)
+
+
+@MIXINGS.register("adaptive", AdaptiveMixingParams)
+def adaptive_mixing(params: AdaptiveMixingParams, context: PartsContext) -> AdaptiveMixing:
+    return AdaptiveMixing(params)
+
+
+@MIXINGS.register("verified_gate", VerifiedGateParams)
+def verified_gate_mixing(params: VerifiedGateParams, context: PartsContext) -> VerifiedGateMixing:
+    verifier = HypothesisVerifier(
+        context.grid, context.laser, context.section(VerifierParams, "verifier")
+    )
+    gate = VerifiedGate(verifier, params.margin, context.laser_mount, params.persistence)
+    return VerifiedGateMixing(params, _learned(context, "mixing", "verified_gate"), gate)
+
+
+def _learned(context: PartsContext, section: str, kind: str) -> LearnedProposal:
+    if not isinstance(context.proposal, LearnedProposal):
+        raise ValueError(
+            f"{context.where}: section '{section}': type '{kind}' needs the proposal of type "
+            "'learned'"
+        )
+    return context.proposal

@@ -51,7 +51,7 @@ FEATURES = ("inlier_fraction", "mean_distance", "log_network_probability", "inli
 
 @dataclass(frozen=True)
 class VerifierParams:
-    """How hypotheses are refined and scored (conf/localizer/scanlocnet_verified.yaml).
+    """How hypotheses are refined and scored: the `verifier` section of a localizer config.
 
     iterations: Gauss-Newton steps per hypothesis; match_beams: evenly spaced beams used to
     refine (all valid beams score); max_distance: cap of the distance field (m), beyond which
@@ -70,18 +70,11 @@ class VerifierParams:
     merge_distance: float = 0.25
     merge_angle_deg: float = 5.0
 
-    @classmethod
-    def from_config(cls, cfg: dict[str, Any]) -> VerifierParams:
-        known = set(cls.__dataclass_fields__)
-        unknown = sorted(set(cfg) - known)
-        if unknown:
-            raise ValueError(f"verify: unknown fields {unknown}; expected some of {sorted(known)}")
-        params = cls(**{k: type(getattr(cls, k))(v) for k, v in cfg.items()})
-        if params.iterations < 0 or params.match_beams < 3:
-            raise ValueError(f"verify: need iterations >= 0 and match_beams >= 3, got {params}")
-        if min(params.max_distance, params.huber, params.inlier_distance, params.max_step) <= 0:
-            raise ValueError(f"verify: distances must be > 0, got {params}")
-        return params
+    def __post_init__(self) -> None:
+        if self.iterations < 0 or self.match_beams < 3:
+            raise ValueError(f"need iterations >= 0 and match_beams >= 3, got {self}")
+        if min(self.max_distance, self.huber, self.inlier_distance, self.max_step) <= 0:
+            raise ValueError(f"distances must be > 0, got {self}")
 
 
 @dataclass(frozen=True)

@@ -3,8 +3,10 @@
 under its kind by `@register_kind("<kind>")`. A new kind is one registered function; a new
 localizer of an existing kind is one yaml file.
 
-The amcl variants and the hybrid are configurations of one particle filter (localize/mcl/):
-the hybrid plugs its learned proposal and importance weights into it."""
+A config is written in sections (localize/config_params.py): `meta` for the catalog, and the
+sections its kind registered; the amcl variants and the hybrid are configurations of one kind,
+`particle_filter` (localize/mcl/), the hybrid's `proposal`, `mixing` and `weighting` naming
+the learned parts it plugs in (hybrid.py)."""
 
 from __future__ import annotations
 
@@ -23,56 +25,46 @@ from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.estimates import Localization, table_covariances, table_poses
 from scanloc.localize.cnn_localizer import localize_cnn
 from scanloc.localize.fusion import FusionParams, fuse_odometry
-from scanloc.localize.hybrid import (
-    HybridParams,
-    ImportanceWeights,
-    LearnedProposal,
-    VerifiedGate,
-)
+from scanloc.localize import hybrid  # noqa: F401  (registers the hybrid's parts)
+from scanloc.localize.config_params import check_sections, parse_section, section_values
 from scanloc.localize.hypothesis_tracker import TrackerParams, track_hypotheses
 from scanloc.localize.hypothesis_verification import HypothesisVerifier, VerifierParams
 from scanloc.localize.learned_localizer import (
+    LearnedParams,
     fit_calibration,
     in_base_frame,
     localize_learned,
     scan_hypotheses,
     verified,
 )
-from scanloc.localize.mcl.config import MclConfig, build_filter, run_mcl
+from scanloc.localize.mcl.config import FILTER_SECTIONS, filter_from_sections
 from scanloc.localize.mcl.filter import run_filter
+from scanloc.localize.mcl.parts import PartsContext
 from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.sensor.laser import LaserSpec
 from scanloc.trajectory.format import Trajectory
 from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import OccupancyGrid
 
-# Keys of a hybrid config beside amcl's parameters: the learned model and its proposal.
-HYBRID_KEYS = (
-    "model",
-    "k",
-    "k_raw",
-    "nms_distance",
-    "nms_angle_deg",
-    "verify",
-    "calibration_scans",
-    "calibration_count",
-    "proposal",
-)
-
 Kind = Callable[[Mapping[str, Any], "LocalizeInputs"], Localization]
 LOCALIZER_KINDS: dict[str, Kind] = {}
-SEEDED_KINDS: set[str] = set()  # kinds whose result depends on the config's `seed`
+KIND_SECTIONS: dict[str, tuple[str, ...]] = {}  # the config sections each kind reads
+SEEDED_KINDS: set[str] = set()  # kinds whose result depends on the `filter` section's `seed`
 
 
-def register_kind(kind: str, *, seeded: bool = False) -> Callable[[Kind], Kind]:
-    """Register the decorated function as the runner of localizer configs of `kind`;
-    `seeded`: its result depends on the config's `seed` (a particle filter), so that runs over
-    several seeds mean something (the other kinds are deterministic)."""
+def register_kind(
+    kind: str, sections: tuple[str, ...] = (), *, seeded: bool = False
+) -> Callable[[Kind], Kind]:
+    """Register the decorated function as the runner of localizer configs of `kind`, which
+    read `sections` (beside `meta`); `seeded`: its result depends on the seed (a particle
+    filter), so that runs over several seeds mean something (the other kinds are
+    deterministic)."""
 
     def register(run: Kind) -> Kind:
         if kind in LOCALIZER_KINDS and LOCALIZER_KINDS[kind] is not run:
             raise ValueError(f"localizer kind {kind!r} is registered twice")
         LOCALIZER_KINDS[kind] = run
+        KIND_SECTIONS[kind] = ("meta", *sections)
         if seeded:
             SEEDED_KINDS.add(kind)
         return run
@@ -80,9 +72,30 @@ def register_kind(kind: str, *, seeded: bool = False) -> Callable[[Kind], Kind]:
     return register
 
 
+def config_file(cfg: Mapping[str, Any]) -> str:
+    """The file a localizer config came from, for errors."""
+    return f"conf/localizer/{(cfg.get('meta') or {}).get('name', '<unnamed>')}.yaml"
+
+
+def kind_of(cfg: Mapping[str, Any]) -> str:
+    """The `meta` section's `kind`, checked against the registered kinds."""
+    kind = (cfg.get("meta") or {}).get("kind")
+    if kind not in LOCALIZER_KINDS:
+        raise ValueError(
+            f"{config_file(cfg)}: section 'meta': key 'kind': expected one of "
+            f"{sorted(LOCALIZER_KINDS)}, got {kind!r}"
+        )
+    return str(kind)
+
+
 def is_seeded(cfg: Mapping[str, Any]) -> bool:
     """Whether the localizer a config describes gives other results for other seeds."""
-    return cfg.get("kind") in SEEDED_KINDS
+    return kind_of(cfg) in SEEDED_KINDS
+
+
+def with_seed(cfg: Mapping[str, Any], seed: int) -> dict[str, Any]:
+    """A copy of a seeded localizer's config with the `filter` section's `seed` set."""
+    return {**cfg, "filter": {**(cfg.get("filter") or {}), "seed": int(seed)}}
 
 
 @dataclass(frozen=True)
@@ -107,88 +120,53 @@ class LocalizeInputs:
 
 
 def ensemble_model_paths(cfg: Mapping[str, Any]) -> list[Path]:
-    """The listed models, then member_<k>/model.pt of `member_dir` in member order."""
-    paths = [Path(p) for p in cfg["models"]]
-    if cfg.get("member_dir"):
-        member_dir = Path(cfg["member_dir"])
+    """The `ensemble` section's models, then member_<k>/model.pt of its `member_dir` in member
+    order."""
+    where = config_file(cfg)
+    ensemble = section_values(cfg, "ensemble", where)
+    unknown = sorted(set(ensemble) - {"models", "member_dir"})
+    if unknown:
+        raise ValueError(
+            f"{where}: section 'ensemble': unknown key {unknown[0]!r}; known: member_dir, models"
+        )
+    paths = [Path(p) for p in ensemble.get("models") or []]
+    if ensemble.get("member_dir"):
+        member_dir = Path(ensemble["member_dir"])
         members = sorted(member_dir.glob("member_*/model.pt"), key=lambda p: int(p.parent.name[7:]))
         if not members:
-            raise FileNotFoundError(
-                f"{member_dir}: no member_<k>/model.pt (localizer {cfg['name']})"
-            )
+            raise FileNotFoundError(f"{member_dir}: no member_<k>/model.pt ({where})")
         paths += members
+    if not paths:
+        raise ValueError(f"{where}: section 'ensemble': expected `models` or `member_dir`")
     return paths
 
 
-@register_kind("amcl", seeded=True)
-def run_amcl_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
-    """ROS amcl (the particle filter with amcl's parts), tracking from the true first pose or
-    global (`mode`)."""
+@register_kind("particle_filter", (*FILTER_SECTIONS, "learned", "verifier"), seeded=True)
+def run_particle_filter_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+    """The particle filter from its config's sections: amcl with its own parts, or with the
+    learned localizer's proposal, mixing and importance weights (the hybrid, hybrid.py)."""
     start = time.perf_counter()
-    grid = inputs.grid
-    loaded = time.perf_counter() - start
-    run = run_mcl(
-        grid,
+    context = PartsContext(
+        inputs.grid,
         inputs.laser,
-        inputs.trajectory,
-        inputs.ranges,
-        MclConfig.from_ros(cfg),
-        mode=str(cfg.get("mode", "tracking")),
-        seed=int(cfg.get("seed", 0)),
-        laser_mount=inputs.laser_mount,
+        inputs.laser_mount,
+        hypotheses=lambda: learned_hypotheses(cfg, inputs)[0],
     )
-    return run._replace(setup_s=run.setup_s + loaded)
+    pf = filter_from_sections(cfg, config_file(cfg), context)
+    return run_filter(pf, inputs.trajectory, inputs.ranges, setup_s=time.perf_counter() - start)
 
 
-@register_kind("hybrid", seeded=True)
-def run_hybrid_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
-    """The particle filter with the learned localizer's hypotheses as its proposal and their
-    importance weights (hybrid.py)."""
-    start = time.perf_counter()
-    hybrid = HybridParams.from_config(dict(cfg["proposal"]))
-    grid = inputs.grid
-    config = MclConfig.from_ros({k: v for k, v in cfg.items() if k not in HYBRID_KEYS})
-    hypotheses_of, _ = learned_hypotheses(cfg, inputs)
-    uniform = UniformProposal(grid, config.map_half_cell_offset)
-    proposal = LearnedProposal(hypotheses_of, uniform, hybrid)
-    gate = None
-    if hybrid.verified_gate:
-        verifier = HypothesisVerifier(
-            grid, inputs.laser, VerifierParams.from_config(dict(cfg.get("verify") or {}))
-        )
-        gate = VerifiedGate(
-            verifier, hybrid.gate_margin, inputs.laser_mount, hybrid.gate_persistence
-        )
-    weighting = ImportanceWeights(proposal, hybrid, gate)
-    pf = build_filter(
-        grid,
-        inputs.laser,
-        config,
-        int(cfg.get("seed", 0)),
-        proposal=proposal,
-        weighting=weighting,
-        laser_mount=inputs.laser_mount,
-    )
-    return run_filter(
-        pf,
-        inputs.trajectory,
-        inputs.ranges,
-        str(cfg.get("mode", "global")),
-        time.perf_counter() - start,
-    )
-
-
-@register_kind("cnn")
+@register_kind("cnn", ("ensemble",))
 def run_cnn_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """The paper's CNN localizers: one network, or the mean of an ensemble, per scan."""
     traj = inputs.trajectory
     return localize_cnn(ensemble_model_paths(cfg), inputs.ranges, traj.times)
 
 
-@register_kind("fusion")
+@register_kind("fusion", ("ensemble", "fusion"))
 def run_fusion_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """The CNN ensemble's poses fused with odometry by an EKF (fusion.py)."""
-    params = FusionParams.from_config(dict(cfg["fusion"]))
+    params = parse_section(FusionParams, cfg, "fusion", config_file(cfg))
     cnn = run_cnn_kind(cfg, inputs)
     traj = inputs.trajectory
     start = time.perf_counter()
@@ -203,69 +181,67 @@ def run_fusion_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localizat
     return Localization(fused.table, cnn.setup_s, cnn.scan_seconds + per_step, counts)
 
 
-def learned_options(cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """The learned localizer's decoding options of a localizer config."""
-    keys = ("k", "k_raw", "nms_distance", "nms_angle_deg")
-    return {key: cfg[key] for key in keys if key in cfg}
-
-
 def learned_hypotheses(
     cfg: Mapping[str, Any], inputs: LocalizeInputs
 ) -> tuple[Callable[[np.ndarray], Any], float]:
-    """(per-scan hypotheses function, setup seconds) of a config with a learned model: its
-    ranked hypotheses, verified against the map when the config has a `verify` section (the
+    """(per-scan hypotheses function, setup seconds) of the `learned` section's model: its
+    ranked hypotheses, verified against the map (the `verifier` section) when `verified` (the
     calibration fitted on `calibration_count` of the `calibration_scans` dataset's validation
     scans, evenly spaced: scans no evaluation scores). The network and the verifier work in
     the laser's frame; what the function returns are poses of the robot's base."""
     start = time.perf_counter()
-    for field in ("calibration_scans", "calibration_count") if cfg.get("verify") else ():
-        if cfg.get(field) is None:
+    where = config_file(cfg)
+    learned = parse_section(LearnedParams, cfg, "learned", where)
+    for key in ("model", "calibration_scans") if learned.verified else ("model",):
+        if not getattr(learned, key):
             raise ValueError(
-                f"conf/localizer/{cfg.get('name')}.yaml: field '{field}': expected a value "
-                "(verified hypotheses need the scans their score is calibrated on)"
+                f"{where}: section 'learned': key '{key}': expected a value"
+                + (" (verified hypotheses need the scans their score is calibrated on)"
+                   if key == "calibration_scans" else "")
             )
-    _, hypotheses_of, _ = scan_hypotheses(Path(cfg["model"]), inputs.ranges, **learned_options(cfg))
-    if not cfg.get("verify"):
+    _, hypotheses_of, _ = scan_hypotheses(Path(learned.model), inputs.ranges, learned)
+    if not learned.verified:
         return in_base_frame(hypotheses_of, inputs.laser_mount), time.perf_counter() - start
-    verifier = HypothesisVerifier(
-        inputs.grid, inputs.laser, VerifierParams.from_config(dict(cfg["verify"]))
-    )
-    verifier.calibration = _calibration(cfg, inputs, hypotheses_of, verifier)
+    params = parse_section(VerifierParams, cfg, "verifier", where)
+    verifier = HypothesisVerifier(inputs.grid, inputs.laser, params)
+    verifier.calibration = _calibration(learned, params, inputs, hypotheses_of, verifier)
     checked = verified(hypotheses_of, verifier)
     return in_base_frame(checked, inputs.laser_mount), time.perf_counter() - start
 
 
 def _calibration(
-    cfg: Mapping[str, Any], inputs: LocalizeInputs, hypotheses_of, verifier: HypothesisVerifier
+    learned: LearnedParams,
+    params: VerifierParams,
+    inputs: LocalizeInputs,
+    hypotheses_of,
+    verifier: HypothesisVerifier,
 ):
-    """The verifier's calibration for `cfg`, fitted once per stage: localizers with the same
-    model, calibration scans and settings (scanlocnet_verified, hybrid_verified) share it."""
-    settings = [cfg["model"], cfg["calibration_scans"], cfg["calibration_count"], cfg["verify"]]
-    settings.append(learned_options(cfg))
+    """The verifier's calibration, fitted once per stage: localizers with the same model,
+    calibration scans and settings (scanlocnet_verified, hybrid_verified) share it."""
+    settings = [dataclasses.asdict(learned), dataclasses.asdict(params)]
     key = "calibration:" + json.dumps(settings, sort_keys=True, default=str)
     if key not in inputs.shared:
-        data = load_scan_dataset(cfg["calibration_scans"])
+        data = load_scan_dataset(learned.calibration_scans)
         val = data.val_idx
-        count = int(cfg["calibration_count"])
-        pick = val[np.unique(np.linspace(0, len(val) - 1, count).astype(int))]
+        pick = val[np.unique(np.linspace(0, len(val) - 1, learned.calibration_count).astype(int))]
         inputs.shared[key], _ = fit_calibration(
             hypotheses_of, verifier, np.asarray(data.ranges[pick]), data.poses[pick]
         )
     return inputs.shared[key]
 
 
-@register_kind("learned")
+@register_kind("learned", ("learned", "verifier"))
 def run_learned_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """scanloc's learned localizer: ranked hypotheses from each scan alone (verified against
-    the map when the config has `verify`)."""
+    the map when its `learned` section says `verified`)."""
     hypotheses_of, setup_s = learned_hypotheses(cfg, inputs)
     return localize_learned(hypotheses_of, setup_s, inputs.ranges, inputs.trajectory.times)
 
 
-@register_kind("learned_tracking")
+@register_kind("learned_tracking", ("learned", "verifier", "tracker"))
 def run_learned_tracking_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
     """The learned localizer's hypotheses tracked over time with odometry (a Gaussian sum)."""
-    params = TrackerParams.from_config(dict(cfg["tracker"]))
+    params = parse_section(TrackerParams, cfg, "tracker", config_file(cfg))
     learned = run_learned_kind(cfg, inputs)
     start = time.perf_counter()
     u = UniformProposal(inputs.grid).uniform_density
@@ -278,11 +254,8 @@ def run_learned_tracking_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) ->
 
 
 def run_localizer(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
-    """Run the localizer a config describes (its `kind` picks the function)."""
-    kind = cfg.get("kind")
-    if kind not in LOCALIZER_KINDS:
-        raise ValueError(
-            f"conf/localizer/{cfg.get('name')}.yaml: field 'kind': expected one of "
-            f"{sorted(LOCALIZER_KINDS)}, got {kind!r}"
-        )
+    """Run the localizer a config describes (its `meta` section's `kind` picks the function,
+    which reads the sections it registered; any other section is an error)."""
+    kind = kind_of(cfg)
+    check_sections(cfg, KIND_SECTIONS[kind], config_file(cfg), f"a localizer of kind '{kind}'")
     return LOCALIZER_KINDS[kind](cfg, inputs)

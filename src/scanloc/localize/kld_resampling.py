@@ -63,6 +63,12 @@ def _pick_indices(cum: np.ndarray, u_pick: np.ndarray, n: int) -> np.ndarray:
     return picks
 
 
+def pick_indices(weights: np.ndarray, u_pick: np.ndarray) -> np.ndarray:
+    """The particle each uniform in [0, 1) picks in proportion to the normalised `weights`."""
+    cum = np.concatenate([[0.0], np.cumsum(weights)])
+    return _pick_indices(cum, np.ascontiguousarray(u_pick), len(weights))
+
+
 @numba.njit(cache=True)
 def resample_kld(
     poses: np.ndarray,

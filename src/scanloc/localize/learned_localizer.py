@@ -23,6 +23,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,26 +34,44 @@ from scanloc.localize.score_calibration import ScoreCalibration
 from scanloc.pose import compose, inverse, recall_within
 
 
-def scan_hypotheses(
-    model_path: Path,
-    ranges: np.ndarray,
-    k: int = 20,
-    k_raw: int = 50,
-    nms_distance: float = 0.5,
-    nms_angle_deg: float = 10.0,
-):
+@dataclass(frozen=True)
+class LearnedParams:
+    """The `learned` section of a localizer config: the model, how its hypotheses are decoded
+    (the `k` best after suppressing duplicates among the `k_raw` best within `nms_distance` m
+    and `nms_angle_deg`), and whether they are `verified` against the map (the `verifier`
+    section), with the calibration fitted on `calibration_count` of the `calibration_scans`
+    dataset's validation scans."""
+
+    model: str = ""
+    k: int = 20
+    k_raw: int = 50
+    nms_distance: float = 0.5
+    nms_angle_deg: float = 10.0
+    verified: bool = False
+    calibration_scans: str = ""
+    calibration_count: int = 500
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.k <= self.k_raw:
+            raise ValueError(f"need 1 <= k <= k_raw, got {self.k}, {self.k_raw}")
+        if self.calibration_count < 1:
+            raise ValueError(f"calibration_count must be >= 1, got {self.calibration_count}")
+
+
+def scan_hypotheses(model_path: Path, ranges: np.ndarray, params: LearnedParams = LearnedParams()):
     """(model, per-scan hypotheses function, setup seconds): the function maps one scan
-    (beams,) to Hypotheses of one row (torch is imported here, not at module load)."""
+    (beams,) to Hypotheses of one row, decoded as `params` say (torch is imported here, not at
+    module load)."""
     from scanloc.models.model_files import load_model
     from scanloc.scanlocnet.model import suppress_duplicates, top_k
 
     start = time.perf_counter()
     model = load_model(model_path)
-    angle = math.radians(nms_angle_deg)
+    angle = math.radians(params.nms_angle_deg)
 
     def localize(scan: np.ndarray):
-        raw = top_k(model, np.asarray(scan, dtype=np.float32)[None], k_raw)
-        return suppress_duplicates(raw, nms_distance, angle, k)
+        raw = top_k(model, np.asarray(scan, dtype=np.float32)[None], params.k_raw)
+        return suppress_duplicates(raw, params.nms_distance, angle, params.k)
 
     localize(ranges[0])  # warm-up: the first call builds oneDNN's kernels
     return model, localize, time.perf_counter() - start

@@ -5,7 +5,7 @@ A stage runs the localizers whose conf/localizer/<name>.yaml lists it under `sta
 (scanloc.localize.catalog), each composed by Hydra as a `localizer@localizers.<key>` entry of
 the stage's config (<key>: the name, `_global_` written `-global-`: catalog.package_key), with
 the stage's own overrides (map_name, sensor, ...), so that adding a localizer is adding one
-yaml file. `++localizers.<key>.<field>=...` overrides a listed localizer's field; `only=<name>`
+yaml file. `++localizers.<key>.<section>.<key>=...` overrides a listed localizer's key; `only=<name>`
 runs just one; `localizer=<config>` runs that config alone. `odometry=wheel|laser` picks the
 run's odometry stream for every localizer; the laser's mounting on the robot comes from the
 run's meta.json `laser_mount` (zero when absent).
@@ -40,11 +40,11 @@ def localizers_to_run(
     those conf/localizer lists for `stage`, composed by Hydra into the running stage's config
     (`config_name`, default: `stage`) with the run's `overrides`."""
     if cfg.get("localizer") is not None:
-        return {str(cfg.localizer.name): cfg.localizer}
+        return {str(cfg.localizer.meta.name): cfg.localizer}
     listed = localizer_overrides(stage, Path(conf_dir()) / "localizer")
     composed = compose(config_name=config_name or stage, overrides=[*overrides, *listed])
     composed = composed.localizers
-    return {str(localizer.name): localizer for localizer in composed.values()}
+    return {str(localizer.meta.name): localizer for localizer in composed.values()}
 
 
 ODOMETRY_SOURCES = ("wheel", "laser")
@@ -116,10 +116,10 @@ def localize_all(cfg: DictConfig, stage: str, overrides: Sequence[str]) -> dict[
     timings = {}
     for name in steps(names, f"localize {cfg.trajectory}"):
         localizer = to_dict(localizers[name])
-        if localizer.get("name") != name:
+        if localizer["meta"].get("name") != name:
             raise ValueError(
-                f"conf/localizer/{name}.yaml: field 'name': expected {name!r}, "
-                f"got {localizer.get('name')!r}"
+                f"conf/localizer/{name}.yaml: section 'meta': key 'name': expected {name!r}, "
+                f"got {localizer['meta'].get('name')!r}"
             )
         run = run_localizer(localizer, inputs)
         with atomic_path(out_dir / f"{name}.csv") as tmp:

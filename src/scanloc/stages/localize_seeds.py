@@ -13,7 +13,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from scanloc.io import atomic_dir, write_json
-from scanloc.localize.kinds import is_seeded, run_localizer
+from scanloc.localize.kinds import is_seeded, run_localizer, with_seed
 from scanloc.progress import steps
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.stages.group_files import load_group_files
@@ -51,7 +51,7 @@ def main(cfg: DictConfig) -> None:
         timings: dict[str, dict[str, Any]] = {}
         with atomic_dir(cfg.out_dir) as tmp:
             for name, seed in steps(seed_runs(cfg, localizers), f"seeds {cfg.trajectory}"):
-                run = run_localizer(localizers[name] | {"seed": seed}, inputs)
+                run = run_localizer(with_seed(localizers[name], seed), inputs)
                 (tmp / f"s{seed}").mkdir(exist_ok=True)
                 run.table.to_csv(tmp / f"s{seed}" / f"{name}.csv", index=False, float_format="%.9g")
                 timings.setdefault(name, {})[f"s{seed}"] = run.timing()

@@ -9,10 +9,11 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, open_dict
 
 from scanloc.evaluate.table2 import RECALL_K, evaluate_all
 from scanloc.io import write_json
+from scanloc.localize.catalog import raw_config
 from scanloc.localize.kinds import LocalizeInputs, run_localizer
 from scanloc.sensor.corruptions import KINDS
 from scanloc.sensor.simulate import laser_spec_from_config
@@ -35,12 +36,13 @@ def variant_off(variant: str) -> list[str]:
 
 
 def localizer_config(name: str, model: Path, calibration_scans: str) -> dict:
-    """conf/localizer/<name>.yaml with this model and calibration scans."""
-    cfg = OmegaConf.load(Path(conf_dir()) / "localizer" / f"{name}.yaml")
-    cfg.model = str(model)
-    if "calibration_scans" in cfg:
-        cfg.calibration_scans = calibration_scans
-    return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+    """conf/localizer/<name>.yaml (merged over its defaults list) with this model and, where
+    it verifies its hypotheses, these calibration scans."""
+    cfg = raw_config(name, Path(conf_dir()) / "localizer")
+    learned = {**cfg["learned"], "model": str(model)}
+    if learned.get("verified"):
+        learned["calibration_scans"] = calibration_scans
+    return {**cfg, "learned": learned}
 
 
 def score_on_run(cfg: DictConfig, model: Path) -> dict[str, float]:

@@ -78,11 +78,11 @@ def with_keys(config: Mapping[str, Any], keys: Mapping[str, Any]) -> dict[str, A
 
 def resolve_option(option: Mapping[str, Any], fitted: Sequence[float]) -> dict[str, Any]:
     """A factor option as localizer config keys: `fitted_alpha_scale: k` becomes
-    odom_alpha1..4 = k × the fitted alphas."""
+    motion.odom_alpha1..4 = k × the fitted alphas."""
     keys = {k: v for k, v in option.items() if k != FITTED_SCALE_KEY}
     if FITTED_SCALE_KEY in option:
         scale = float(option[FITTED_SCALE_KEY])
-        keys |= {f"odom_alpha{i}": scale * a for i, a in enumerate(fitted, start=1)}
+        keys |= {f"motion.odom_alpha{i}": scale * a for i, a in enumerate(fitted, start=1)}
     return keys
 
 
@@ -153,7 +153,7 @@ def score_trial(
     """The objective's figures on every run and seed with `keys` set, and their means."""
     per_run = {
         f"{run.name}/s{seed}": OBJECTIVES[objective](
-            with_keys(run.localizer, {**keys, "seed": int(seed)}), run.inputs
+            with_keys(run.localizer, {**keys, "filter.seed": int(seed)}), run.inputs
         )
         for run in runs
         for seed in seeds

@@ -1,13 +1,17 @@
-"""A flat, ROS-named localizer config (conf/localizer/amcl.yaml: `laser_z_hit`, `odom_alpha1`,
-`resample_interval`, ...) mapped onto the particle filter's parts.
+"""A particle filter's config in sections (conf/localizer/amcl.yaml), each read by its part:
 
-The keys are ROS 1 amcl's, as users know them; each part takes its own: the filter
-(`FilterParams`), the odometry model (`OdometryParams`, `odom_*`), the laser range limits
-(`LaserParams`) and the sensor model `laser_model_type` names (its `Params`). Keys of the
-sensor models not chosen are checked too (as ROS reads every parameter), and
-`map_half_cell_offset` (true: amcl's half-cell world→cell shift, conf/localizer/
-amcl_ros_exact.yaml) goes to the sensor model and the uniform proposal. A key no part knows is
-an error naming the config file and the key.
+- `filter` (`FilterParams`): ROS 1 amcl's filter keys (`min_particles`, `update_min_d`,
+  `resample_interval`, `recovery_alpha_slow`, ...), the start (`mode`) and `seed`, and the
+  policies (`update_trigger`, `resampler`, `estimator`);
+- `motion` (`OdometryParams`): ROS's `odom_model_type` and `odom_alpha1..5`;
+- `sensor` (`SensorParams`): ROS's `laser_model_type` and `laser_*` keys (every model's keys
+  are checked, as ROS reads every parameter), and `map_half_cell_offset` (true: amcl's
+  half-cell world→cell shift, conf/localizer/amcl_ros_exact.yaml);
+- `proposal`, `mixing`, `weighting`: parts chosen by their registered `type` (parts.py).
+
+ROS's parameter names stay as ROS writes them inside the sections, so a user's amcl YAML
+reads across: `MclConfig.from_ros` sorts a flat one into the sections. A key no part knows is
+an error naming the config file, the section and the key; each default is its part's own.
 """
 
 from __future__ import annotations
@@ -18,30 +22,40 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from scanloc.estimates import Localization
-from scanloc.localize.catalog import META_KEYS
-from scanloc.localize.config_params import params_from_config
-from scanloc.localize.mcl.estimator import ClusterEstimator, map_bins
+from scanloc.localize.config_params import parse_section, section_values
+from scanloc.localize.mcl.estimator import ESTIMATORS, map_bins
 from scanloc.localize.mcl.filter import FilterParams, ParticleFilter, run_filter
+from scanloc.localize.mcl.mixing import Mixing
 from scanloc.localize.mcl.motion import OdometryParams
+from scanloc.localize.mcl.parts import MIXINGS, PROPOSALS, WEIGHTINGS, PartsContext
 from scanloc.localize.mcl.proposals import Proposal, UniformProposal, Weighting
-from scanloc.localize.mcl.resampler import KldResampler
 from scanloc.localize.mcl.sensor_models import SENSOR_MODELS, LaserGeometry, LaserParams
 from scanloc.sensor.laser import LaserSpec
 from scanloc.world.occupancy_grid import OccupancyGrid
 
-_SENSOR_PARAMS = tuple(dict.fromkeys(model.Params for model in SENSOR_MODELS.values()))
-_PARTS = (FilterParams, OdometryParams, LaserParams, *_SENSOR_PARAMS)
+# The sections a particle filter's config may have (beside the catalog's `meta`).
+FILTER_SECTIONS = ("filter", "motion", "sensor", "proposal", "mixing", "weighting")
+_MODEL_PARAMS = tuple(dict.fromkeys(model.Params for model in SENSOR_MODELS.values()))
 
 
-def known_keys() -> list[str]:
-    """Every parameter a ROS-named filter config may set, sorted."""
-    names = {f.name for part in _PARTS for f in fields(part)}
-    return sorted(names | {f.name for f in fields(_OwnKeys)})
+@dataclass(frozen=True)
+class _SensorChoice:
+    """The `sensor` keys that are not a model's parameters."""
+
+    laser_model_type: str = "likelihood_field"
+    map_half_cell_offset: bool = False
+
+
+_SENSOR_PARTS = (_SensorChoice, LaserParams, *_MODEL_PARAMS)
+
+
+def _names(part: type) -> set[str]:
+    return {f.name for f in fields(part)}
 
 
 @dataclass(frozen=True)
 class MclConfig:
-    """The parts' parameters of one localizer config."""
+    """The parts' parameters of one particle filter config."""
 
     filter: FilterParams = field(default_factory=FilterParams)
     odometry: OdometryParams = field(default_factory=OdometryParams)
@@ -60,72 +74,75 @@ class MclConfig:
             object.__setattr__(self, "sensor", SENSOR_MODELS[self.laser_model_type].Params())
 
     @classmethod
-    def from_ros(cls, config: Mapping[str, Any], source: str | None = None) -> MclConfig:
-        """The parts of a flat ROS-named config (meta keys such as `name` are skipped).
-
-        `source` names the config in errors (default: conf/localizer/<name>.yaml).
-        """
-        where = source or f"conf/localizer/{config.get('name', '<unnamed>')}.yaml"
-        values = {k: v for k, v in config.items() if k not in META_KEYS}
-        known = known_keys()
-        for key in values:
+    def from_sections(cls, config: Mapping[str, Any], where: str) -> MclConfig:
+        """The `filter`, `motion` and `sensor` sections of `config`; errors name `where`."""
+        sensor = section_values(config, "sensor", where)
+        known = sorted(set().union(*(_names(part) for part in _SENSOR_PARTS)))
+        for key in sensor:
             if key not in known:
                 raise ValueError(
-                    f"{where}: field {key!r}: unknown parameter; known: {', '.join(known)}"
+                    f"{where}: section 'sensor': unknown key {key!r}; known: {', '.join(known)}"
                 )
-        own = _parse(_OwnKeys, values, where)
-        parts = {part: _parse(part, values, where) for part in _PARTS}
-        model = own.laser_model_type
-        if model not in SENSOR_MODELS:
+
+        def part(cls_: type) -> Any:
+            own = {k: v for k, v in sensor.items() if k in _names(cls_)}
+            return parse_section(cls_, {"sensor": own}, "sensor", where)
+
+        choice = part(_SensorChoice)
+        if choice.laser_model_type not in SENSOR_MODELS:
             raise ValueError(
-                f"{where}: field 'laser_model_type': expected one of {sorted(SENSOR_MODELS)}, "
-                f"got {model!r}"
+                f"{where}: section 'sensor': key 'laser_model_type': expected one of "
+                f"{sorted(SENSOR_MODELS)}, got {choice.laser_model_type!r}"
             )
+        for params in _MODEL_PARAMS:  # every model's keys are checked, as ROS reads them all
+            part(params)
         return cls(
-            filter=parts[FilterParams],
-            odometry=parts[OdometryParams],
-            laser=parts[LaserParams],
-            laser_model_type=model,
-            sensor=parts[SENSOR_MODELS[model].Params],
-            map_half_cell_offset=own.map_half_cell_offset,
+            filter=parse_section(FilterParams, config, "filter", where),
+            odometry=parse_section(OdometryParams, config, "motion", where),
+            laser=part(LaserParams),
+            laser_model_type=choice.laser_model_type,
+            sensor=part(SENSOR_MODELS[choice.laser_model_type].Params),
+            map_half_cell_offset=choice.map_half_cell_offset,
         )
+
+    @classmethod
+    def from_ros(cls, ros: Mapping[str, Any], where: str = "<ROS parameters>") -> MclConfig:
+        """A flat ROS amcl parameter mapping (a user's amcl YAML), each key sorted into the
+        section of the part that has it."""
+        return cls.from_sections(ros_sections(ros, where), where)
 
     def with_filter(self, **changes: Any) -> MclConfig:
         """A copy with some FilterParams changed."""
         return replace(self, filter=replace(self.filter, **changes))
 
 
-@dataclass(frozen=True)
-class _OwnKeys:
-    """The types and defaults of the keys the builder itself reads."""
-
-    laser_model_type: str = "likelihood_field"
-    map_half_cell_offset: bool = False
-
-
-def _parse(part: type, values: Mapping[str, Any], where: str) -> Any:
-    """The dataclass `part` from the keys of `values` it has; errors name `where`."""
-    names = {f.name for f in fields(part)}
-    try:
-        return params_from_config(part, {k: v for k, v in values.items() if k in names}, where)
-    except ValueError as err:
-        if str(err).startswith(where):
-            raise
-        raise ValueError(f"{where}: {err}") from None
+def ros_sections(ros: Mapping[str, Any], where: str) -> dict[str, dict[str, Any]]:
+    """A flat ROS amcl parameter mapping as the sections `filter`, `motion`, `sensor`."""
+    owners = {"filter": _names(FilterParams), "motion": _names(OdometryParams)}
+    owners["sensor"] = set().union(*(_names(part) for part in _SENSOR_PARTS))
+    sections: dict[str, dict[str, Any]] = {name: {} for name in owners}
+    for key, value in ros.items():
+        section = next((name for name, keys in owners.items() if key in keys), None)
+        if section is None:
+            known = sorted(set().union(*owners.values()))
+            raise ValueError(f"{where}: unknown parameter {key!r}; known: {', '.join(known)}")
+        sections[section][key] = value
+    return sections
 
 
 def build_filter(
     grid: OccupancyGrid,
     spec: LaserSpec,
     config: MclConfig | None = None,
-    seed: int = 0,
+    seed: int | None = None,
     proposal: Proposal | None = None,
     weighting: Weighting | None = None,
     laser_mount: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    mixing: Mixing | None = None,
 ) -> ParticleFilter:
     """The particle filter `config` describes, on `grid` with the laser `spec` mounted at
     `laser_mount` (x, y, θ in the base frame); the proposal defaults to amcl's uniform one over
-    the free space, the weighting to amcl's."""
+    the free space, the mixing to none and the weighting to amcl's; `seed` to the config's."""
     config = config or MclConfig()
     dims = map_bins(grid)
     p = config.filter
@@ -136,14 +153,32 @@ def build_filter(
         motion=config.odometry.model(),
         sensor=model.build(grid, laser, config.sensor, config.map_half_cell_offset),
         proposal=proposal or UniformProposal(grid, config.map_half_cell_offset),
-        resampler=KldResampler(
-            dims, p.min_particles, p.max_particles, p.kld_err, p.kld_z, p.selective_resampling
-        ),
-        estimator=ClusterEstimator(dims),
-        trigger=p.trigger(),
+        resampler=p.resampler_for(dims),
+        estimator=ESTIMATORS[p.estimator](dims),
         num_beams=spec.num_beams,
+        mixing=mixing,
         weighting=weighting,
         seed=seed,
+    )
+
+
+def filter_from_sections(
+    config: Mapping[str, Any], where: str, context: PartsContext
+) -> ParticleFilter:
+    """The particle filter a sectioned config describes, its proposal, mixing and weighting
+    built by their registered types (`context`: the map, the laser, the learned hypotheses)."""
+    mcl = MclConfig.from_sections(config, where)
+    context.sections, context.where = config, where
+    context.half_cell_offset = mcl.map_half_cell_offset
+    context.proposal = PROPOSALS.build(context)
+    return build_filter(
+        context.grid,
+        context.laser,
+        mcl,
+        proposal=context.proposal,
+        weighting=WEIGHTINGS.build(context),
+        laser_mount=context.laser_mount,
+        mixing=MIXINGS.build(context),
     )
 
 
@@ -153,12 +188,13 @@ def run_mcl(
     trajectory: object,
     ranges: Any,
     config: MclConfig | None = None,
-    mode: str = "tracking",
-    seed: int = 0,
+    mode: str | None = None,
+    seed: int | None = None,
     laser_mount: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> Localization:
     """amcl over a driven trajectory: tracking from the true first pose with the initial_cov_*
-    covariance, or global from particles uniform over the free space (see filter.run_filter)."""
+    covariance, or global from particles uniform over the free space (see filter.run_filter);
+    `mode` and `seed` default to the config's."""
     start = time.perf_counter()
     pf = build_filter(grid, spec, config, seed=seed, laser_mount=laser_mount)
     return run_filter(pf, trajectory, ranges, mode, time.perf_counter() - start)

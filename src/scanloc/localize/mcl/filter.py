@@ -34,21 +34,28 @@ import numpy as np
 
 from scanloc.estimates import Localization, estimate_table
 from scanloc.localize.likelihood_field_prob import converged
-from scanloc.localize.mcl.estimator import Estimator
+from scanloc.localize.mcl.averages import LikelihoodAverages
+from scanloc.localize.mcl.estimator import ESTIMATORS, Estimator
+from scanloc.localize.mcl.mixing import Mixing, NoMixing
 from scanloc.localize.mcl.motion import MotionModel
 from scanloc.localize.mcl.proposals import PriorWeights, Proposal, Weighting
-from scanloc.localize.mcl.resampler import Resampler
+from scanloc.localize.mcl.resampler import RESAMPLERS, Resampler, SelectiveResampling
 from scanloc.localize.mcl.sensor_models import SensorModel
-from scanloc.localize.mcl.trigger import UpdateTrigger
+from scanloc.localize.mcl.trigger import UPDATE_TRIGGERS, Schedule, UpdateTrigger
+
+MODES = ("tracking", "global")
 from scanloc.pose import compose, inverse, wrap_angle
 
 
 @dataclass(frozen=True)
 class FilterParams:
-    """The filter's own parameters, ROS 1 amcl's names and defaults (amcl_node.cpp). The
-    trigger's (update_min_d/_a, resample_interval, publish_every_update) and the KLD
-    resampler's (particle counts, kld_err/_z, selective_resampling) are built from them."""
+    """The `filter` section: ROS 1 amcl's names and defaults (amcl_node.cpp), how the filter
+    starts (`mode`: `tracking` from a pose, `global` without one) and its random `seed`, and
+    which policies it runs: `update_trigger` (trigger.py), `resampler` (resampler.py; with
+    `selective_resampling` around it) and `estimator` (estimator.py)."""
 
+    mode: str = "tracking"
+    seed: int = 0
     min_particles: int = 100
     max_particles: int = 5000
     kld_err: float = 0.01
@@ -63,8 +70,21 @@ class FilterParams:
     initial_cov_yy: float = 0.5 * 0.5
     initial_cov_aa: float = (math.pi / 12.0) * (math.pi / 12.0)
     publish_every_update: bool = False
+    update_trigger: str = "on_motion"
+    resampler: str = "kld"
+    estimator: str = "heaviest_cluster"
 
     def __post_init__(self) -> None:
+        for key, choices in (
+            ("mode", MODES),
+            ("update_trigger", UPDATE_TRIGGERS),
+            ("resampler", RESAMPLERS),
+            ("estimator", ESTIMATORS),
+        ):
+            if getattr(self, key) not in choices:
+                raise ValueError(
+                    f"{key} must be one of {sorted(choices)}, got {getattr(self, key)!r}"
+                )
         if not 1 <= self.min_particles <= self.max_particles:
             raise ValueError(
                 "need 1 <= min_particles <= max_particles, got "
@@ -72,14 +92,25 @@ class FilterParams:
             )
         if not (self.kld_err > 0 and self.kld_z > 0):
             raise ValueError(f"kld_err and kld_z must be > 0, got {self.kld_err}, {self.kld_z}")
-        if not (0 <= self.recovery_alpha_slow <= 1 and 0 <= self.recovery_alpha_fast <= 1):
-            raise ValueError("recovery_alpha_slow / _fast must lie in [0, 1]")
-        self.trigger()  # validates the trigger's parameters
+        self.recovery()  # validates the alphas
+        self.trigger()  # and the update and resample rules
+        self.schedule()
 
     def trigger(self) -> UpdateTrigger:
-        return UpdateTrigger(
-            self.update_min_d, self.update_min_a, self.resample_interval, self.publish_every_update
+        return UPDATE_TRIGGERS[self.update_trigger](self.update_min_d, self.update_min_a)
+
+    def schedule(self) -> Schedule:
+        return Schedule(self.resample_interval, self.publish_every_update)
+
+    def recovery(self) -> LikelihoodAverages:
+        """amcl's recovery averages (w_slow, w_fast)."""
+        return LikelihoodAverages(self.recovery_alpha_slow, self.recovery_alpha_fast)
+
+    def resampler_for(self, dims: np.ndarray) -> Resampler:
+        resampler = RESAMPLERS[self.resampler](
+            dims, self.min_particles, self.max_particles, self.kld_err, self.kld_z
         )
+        return SelectiveResampling(resampler) if self.selective_resampling else resampler
 
     @property
     def initial_cov(self) -> np.ndarray:
@@ -115,20 +146,21 @@ class ParticleFilter:
         proposal: Proposal,
         resampler: Resampler,
         estimator: Estimator,
-        trigger: UpdateTrigger,
         num_beams: int,
+        mixing: Mixing | None = None,
         weighting: Weighting | None = None,
-        seed: int = 0,
+        seed: int | None = None,
     ) -> None:
         self.params, self.motion, self.sensor_model = params, motion, sensor
         self.proposal, self.resampler, self.estimator = proposal, resampler, estimator
-        self.trigger, self.num_beams = trigger, num_beams
+        self.trigger, self.schedule = params.trigger(), params.schedule()
+        self.num_beams = num_beams
+        self.mixing = mixing or NoMixing()
         self.weighting = weighting or PriorWeights()
-        self.rng = np.random.default_rng(seed)
+        self.rng = np.random.default_rng(params.seed if seed is None else seed)
         self.poses = np.empty((0, 3))
         self.weights = np.empty(0)
-        self.w_slow = 0.0
-        self.w_fast = 0.0
+        self.recovery = params.recovery()
         self.converged = False
         self._initialised = False
         self._pending_global = False
@@ -177,7 +209,7 @@ class ParticleFilter:
         self.poses = np.ascontiguousarray(poses, dtype=np.float64)
         weights = np.asarray(weights, dtype=np.float64)
         self.weights = weights / weights.sum()
-        self.w_slow = self.w_fast = 0.0
+        self.recovery.reset()
         self.converged = False
         self._initialised = True
         self._pf_init = False
@@ -213,23 +245,32 @@ class ParticleFilter:
             do_update = self.trigger.moved(self._pf_odom_pose, odom_pose)
             if do_update:
                 self.motion.sample(self.poses, self._pf_odom_pose, odom_pose, self.rng)
-        resampled = False
+        resample_due = False
         if do_update:
             if self._updates > 0:
-                self.poses, self.weights = self.weighting.predict(
-                    self.poses, self.weights, self.rng
-                )
+                self.mix_in_proposal()
             self.sensor_update(ranges)
             self._pf_odom_pose = odom_pose.copy()
             self._updates += 1
-            if self.trigger.resample_due(self._updates):
+            resample_due = self.schedule.resample_due(self._updates)
+            if resample_due:
                 self.resample()
-                resampled = True
-        if self.trigger.publishes(do_update, resampled):
+        if self.schedule.publishes(do_update, resample_due):
             self._est_pose, self._est_cov = self.estimator.estimate(self.poses, self.weights)
             self._est_odom = odom_pose.copy()
         carried = compose(self._est_pose, compose(inverse(self._est_odom), odom_pose))
         return Estimate(carried, self._est_cov.copy(), len(self.poses), bool(do_update))
+
+    def mix_in_proposal(self) -> None:
+        """The mixing's share of particles drawn from the proposal beside the motion-predicted
+        ones, the union weighted by the weighting (none for amcl)."""
+        share = self.mixing.share(self.poses, self.weights)
+        if share <= 0:
+            return
+        proposed = self.proposal.sample(max(1, round(share * len(self.poses))), self.rng)
+        weights = self.weighting.mixed_weights(self.poses, self.weights, proposed)
+        self.poses = np.ascontiguousarray(np.concatenate([self.poses, proposed]))
+        self.weights = weights
 
     def sensor_update(self, ranges: np.ndarray) -> None:
         """amcl's pf_update_sensor: weights times the sensor model's factors, normalised; the
@@ -241,31 +282,20 @@ class ParticleFilter:
         if total > 0.0:
             w_avg = total / n
             self.weights /= total
-            self.weighting.observe_likelihood(w_avg)
-            p = self.params
-            self.w_slow = (
-                w_avg
-                if self.w_slow == 0.0
-                else self.w_slow + p.recovery_alpha_slow * (w_avg - self.w_slow)
-            )
-            self.w_fast = (
-                w_avg
-                if self.w_fast == 0.0
-                else self.w_fast + p.recovery_alpha_fast * (w_avg - self.w_fast)
-            )
+            self.mixing.observe_likelihood(w_avg)
+            self.recovery.follow(w_avg)
         else:
             self.weights = np.full(n, 1.0 / n)
 
     def resample(self) -> None:
         """amcl's pf_update_resample: the resampler's draw, with recovery injection from the
         proposal while the short-term average weight is below the long-term one."""
-        w_diff = 1.0 - self.w_fast / self.w_slow if self.w_slow > 0.0 else 0.0
-        w_diff = max(w_diff, 0.0)
+        w_diff = max(self.recovery.lost(), 0.0)
         drawn = self.resampler.resample(self.poses, self.weights, w_diff, self.injection, self.rng)
         if drawn is None:
             return
         if w_diff > 0.0:  # amcl resets the averages to avoid spiralling into randomness
-            self.w_slow = self.w_fast = 0.0
+            self.recovery.reset()
         self.poses, self.weights = drawn
         self.converged = converged(self.poses)
 
@@ -281,23 +311,29 @@ class ParticleFilter:
         poses = self.poses[:4].copy() if len(self.poses) >= 4 else np.zeros((4, 3))
         self.sensor_model(poses, np.asarray(ranges), False)
         self.motion.sample(poses, np.zeros(3), np.array([1.0, 0.0, 0.1]), self.rng)
-        saved = (self.poses, self.weights, self.w_slow, self.w_fast, self.converged)
+        saved = (self.poses, self.weights, self.recovery.slow, self.recovery.fast, self.converged)
         self.poses, self.weights = poses, np.full(4, 0.25)
         self.resample()
         self.estimator.estimate(self.poses, self.weights)
-        self.poses, self.weights, self.w_slow, self.w_fast, self.converged = saved
+        self.poses, self.weights, self.recovery.slow, self.recovery.fast, self.converged = saved
         self.rng.bit_generator.state = rng_state
 
 
 def run_filter(
-    pf: ParticleFilter, trajectory: object, ranges: np.ndarray, mode: str, setup_s: float = 0.0
+    pf: ParticleFilter,
+    trajectory: object,
+    ranges: np.ndarray,
+    mode: str | None = None,
+    setup_s: float = 0.0,
 ) -> Localization:
     """Run a built filter over a trajectory (`times`, `truth`, `odometry` arrays, see
     trajectory.Trajectory): tracking from the true first pose, or global. Setup (building the
     filter, `setup_s`, and the kernels' first call) is timed apart from the per-scan updates.
     Rows between filter updates hold the last estimate carried forward by odometry. Its counts:
-    the recovery's injected particles and the weighting's own (Weighting.counts)."""
-    if mode not in ("tracking", "global"):
+    the recovery's injected particles, the mixing's and the proposal's own. `mode` defaults to
+    the filter's (its `filter` section)."""
+    mode = pf.params.mode if mode is None else mode
+    if mode not in MODES:
         raise ValueError(f"mode must be 'tracking' or 'global', got {mode!r}")
     times = np.asarray(trajectory.times)  # type: ignore[attr-defined]
     truth = np.asarray(trajectory.truth)  # type: ignore[attr-defined]
@@ -327,5 +363,6 @@ def run_filter(
         np.array([est.cov for est in estimates]),
         np.array([est.n_particles for est in estimates]),
     )
-    counts = {"n_injected": pf.resampler.injected} | pf.weighting.counts()
+    counts = {"n_injected": pf.resampler.injected} | pf.mixing.counts()
+    counts |= getattr(pf.proposal, "counts", dict)()
     return Localization(table, setup_s, seconds, counts)

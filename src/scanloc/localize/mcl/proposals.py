@@ -7,7 +7,8 @@ radian), which importance sampling needs to weight what it proposes against the 
 
 `Weighting` says how proposed particles are weighted; `PriorWeights` is amcl's: the uniform
 proposal samples the prior itself, so proposed particles weigh as much as resampled ones.
-The hybrid's importance weights (localize/hybrid.py) are the other implementation.
+The hybrid's importance weights (localize/hybrid.py) are the other implementation. How many
+particles are proposed at an update is the mixing's (mixing.py).
 """
 
 from __future__ import annotations
@@ -94,24 +95,18 @@ class Weighting(Protocol):
         """Weights of the poses a recovery injects while resampling (a resampled one: 1)."""
         ...
 
-    def observe_likelihood(self, w_avg: float) -> None:
-        """The mean unnormalised sensor factor of an update (an adaptive weighting follows it)."""
-        ...
-
-    def counts(self) -> dict[str, int]:
-        """Event counts to report with the run (e.g. updates that drew proposed particles)."""
-        ...
-
-    def predict(
-        self, poses: np.ndarray, weights: np.ndarray, rng: np.random.Generator
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The particle set after the motion update, before the sensor update (a hook to mix
-        in proposed particles); not called on the first update after an initialisation."""
+    def mixed_weights(
+        self, poses: np.ndarray, weights: np.ndarray, proposed: np.ndarray
+    ) -> np.ndarray:
+        """Weights (normalised) of the union of the motion-predicted particles `poses` with
+        their `weights` and the `proposed` ones the mixing drew, in that order."""
         ...
 
 
 class PriorWeights:
-    """amcl's weighting: proposed particles sample the prior (uniform) directly."""
+    """amcl's weighting: proposed particles sample the prior (uniform) directly, and a mixed
+    union keeps each part's share (N / (N + m) for the predicted, m / (N + m) for the
+    proposed), without correcting for where the proposal put them."""
 
     def initial_weights(self, poses: np.ndarray) -> np.ndarray:
         return np.full(len(poses), 1.0 / len(poses))
@@ -119,13 +114,8 @@ class PriorWeights:
     def injection_weights(self, poses: np.ndarray) -> np.ndarray:
         return np.ones(len(poses))
 
-    def observe_likelihood(self, w_avg: float) -> None:
-        """amcl's weighting does not adapt."""
-
-    def counts(self) -> dict[str, int]:
-        return {}
-
-    def predict(
-        self, poses: np.ndarray, weights: np.ndarray, rng: np.random.Generator
-    ) -> tuple[np.ndarray, np.ndarray]:
-        return poses, weights
+    def mixed_weights(
+        self, poses: np.ndarray, weights: np.ndarray, proposed: np.ndarray
+    ) -> np.ndarray:
+        n, m = len(poses), len(proposed)
+        return np.concatenate([weights * n, np.ones(m)]) / (n + m)
