@@ -87,7 +87,7 @@ def params_for(model: str, n: int) -> dict[str, Any]:
 
 
 def compiled_filter(grid: OccupancyGrid, spec: LaserSpec, params: dict[str, Any]):
-    return build_filter(grid, spec, MclConfig.from_ros(params, source="benchmark"), seed=0)
+    return build_filter(grid, spec, MclConfig.from_ros(params, where="benchmark"), seed=0)
 
 
 def median_update_s(

@@ -87,7 +87,7 @@ def pipeline_run(profile: str, map_name: str = "sparse_obstacles"):
 def study(grid, spec, traj, ranges, overrides: dict, seed: int) -> dict[str, float]:
     """Run tracking amcl (conf/localizer/amcl.yaml's start) and collect the diagnostics."""
     start = {"initial_cov_xx": 0.01, "initial_cov_yy": 0.01, "initial_cov_aa": 0.0076}
-    params = MclConfig.from_ros(start | overrides, source="benchmark")
+    params = MclConfig.from_ros(start | overrides, where="benchmark")
     amcl = build_filter(grid, spec, params, seed=seed)
     amcl.initialize_pose(traj.truth[0])
     n_eff, distinct, peak_to_median = [], [], []

@@ -13,9 +13,10 @@ model.pt, from `dvc repro train_scanlocnet@sparse_obstacles`) when it exists, el
 one of conf/scanlocnet.yaml's architecture. An untrained network decodes more slowly (its
 branch and bound prunes little), so its figures are a worst case; the JSON names which ran.
 
-Four hybrids, with the proposal settings conf/localizer ships (hybrid.yaml's `proposal`, and
-hybrid_adaptive.yaml's, hybrid_verified.yaml's or hybrid_real.yaml's over it): the constant
-share (`mixture_share` of particles from the proposal, and so the network, on every update),
+Four hybrids, with the proposal, mixing and weighting conf/localizer ships (hybrid.yaml's
+sections, and hybrid_adaptive.yaml's, hybrid_verified.yaml's or hybrid_real.yaml's over them):
+the constant share (`mixing: constant`, a share of particles from the proposal, and so the
+network, on every update),
 the adaptive one (hybrid.py's adaptive mixing: the network runs only on updates whose share
 is > 0, so its cost is amortised; on this clean drive from a known pose it should not need the
 network at all), the verified one (hybrid_verified.yaml: the constant share with every scan's
@@ -47,16 +48,13 @@ from amcl import (  # benchmarks/amcl.py, beside this script
     median_update_s,
     params_for,
 )
-from scanloc.localize.hybrid import (
-    HybridParams,
-    ImportanceWeights,
-    LearnedProposal,
-    VerifiedGate,
-)
+from scanloc.localize.catalog import raw_config
+from scanloc.localize.config_params import parse_section
 from scanloc.localize.hypothesis_verification import HypothesisVerifier, VerifierParams
-from scanloc.localize.learned_localizer import scan_hypotheses, verified
+from scanloc.localize.kinds import config_file
+from scanloc.localize.learned_localizer import LearnedParams, scan_hypotheses, verified
 from scanloc.localize.mcl.config import MclConfig, build_filter
-from scanloc.localize.mcl.proposals import UniformProposal
+from scanloc.localize.mcl.parts import MIXINGS, PROPOSALS, WEIGHTINGS, PartsContext
 from scanloc.models.training import build_model
 from scanloc.scanlocnet.pose_grid import PoseGrid
 from scanloc.sensor.laser import LaserSpec
@@ -86,30 +84,24 @@ def untrained_model(grid, spec: LaserSpec, path: Path) -> Path:
     return path
 
 
-def shipped(name: str) -> dict:
-    """conf/localizer/<name>.yaml as written (its own keys, not its defaults')."""
-    return yaml.safe_load((ROOT / "conf" / "localizer" / f"{name}.yaml").read_text())
+HYBRIDS = {
+    "hybrid": "hybrid",
+    "adaptive_hybrid": "hybrid_adaptive",
+    "verified_hybrid": "hybrid_verified",
+    "gated_hybrid": "hybrid_real",
+}
 
 
-def shipped_hybrids() -> dict[str, tuple[HybridParams, bool]]:
-    """The four hybrids' proposal settings as conf/localizer ships them, and whether each
-    verifies its hypotheses."""
-    constant = shipped("hybrid")["proposal"]
-    return {
-        "hybrid": (HybridParams.from_config(constant), False),
-        "adaptive_hybrid": (
-            HybridParams.from_config(constant | shipped("hybrid_adaptive")["proposal"]),
-            False,
-        ),
-        "verified_hybrid": (
-            HybridParams.from_config(constant | shipped("hybrid_verified").get("proposal", {})),
-            True,
-        ),
-        "gated_hybrid": (
-            HybridParams.from_config(constant | shipped("hybrid_real")["proposal"]),
-            False,
-        ),
-    }
+def hybrid_parts(name: str, grid, spec: LaserSpec, hypotheses_of, verified_of):
+    """(proposal, mixing, weighting) of conf/localizer/<name>.yaml as shipped, on the
+    benchmark's hypotheses (verified ones where its `learned` section says `verified`)."""
+    cfg = raw_config(name, ROOT / "conf" / "localizer")
+    where = config_file(cfg)
+    learned = parse_section(LearnedParams, cfg, "learned", where)
+    chosen = verified_of if learned.verified else hypotheses_of
+    context = PartsContext(grid, spec, sections=cfg, where=where, hypotheses=lambda: chosen)
+    context.proposal = PROPOSALS.build(context)
+    return context.proposal, MIXINGS.build(context), WEIGHTINGS.build(context)
 
 
 def main() -> None:
@@ -123,8 +115,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = args.model if trained else untrained_model(grid, spec, Path(tmp) / "model.pt")
         _, hypotheses_of, _ = scan_hypotheses(path, ranges)
+    cfg = raw_config("hybrid_verified", ROOT / "conf" / "localizer")
     verifier = HypothesisVerifier(
-        grid, spec, VerifierParams.from_config(shipped("hybrid_verified")["verify"])
+        grid, spec, parse_section(VerifierParams, cfg, "verifier", config_file(cfg))
     )
     verified_of = verified(hypotheses_of, verifier)
     net, checked = [], []
@@ -157,22 +150,17 @@ def main() -> None:
         plain_s = median_update_s(plain, odom, ranges, repeats, per_repeat)
         key = f"{n // 1000}k"
         figures[f"amcl_hz_{key}"] = round(1.0 / plain_s, 1)
-        config = MclConfig.from_ros(params | {"publish_every_update": True}, source="benchmark")
-        for label, (hybrid, verify) in shipped_hybrids().items():
-            proposal = LearnedProposal(
-                verified_of if verify else hypotheses_of, UniformProposal(grid), hybrid
+        config = MclConfig.from_ros(params | {"publish_every_update": True}, where="benchmark")
+        for label, name in HYBRIDS.items():
+            proposal, mixing, weighting = hybrid_parts(
+                name, grid, spec, hypotheses_of, verified_of
             )
-            gate = None
-            if hybrid.verified_gate:
-                gate_verifier = HypothesisVerifier(grid, spec, VerifierParams())
-                gate = VerifiedGate(
-                    gate_verifier, hybrid.gate_margin, persistence=hybrid.gate_persistence
-                )
-            weighting = ImportanceWeights(proposal, hybrid, gate)
-            filter_ = build_filter(grid, spec, config, 0, proposal=proposal, weighting=weighting)
+            filter_ = build_filter(
+                grid, spec, config, 0, proposal=proposal, weighting=weighting, mixing=mixing
+            )
             filter_.initialize_pose(odom[0])
             hybrid_s = median_update_s(filter_, odom, ranges, repeats, per_repeat)
-            network_share = proposal.inferences / max(1, weighting.updates)
+            network_share = proposal.inferences / max(1, mixing.updates)
             figures[f"{label}_hz_{key}"] = round(1.0 / hybrid_s, 1)
             figures[f"{label}_cost_ratio_{key}"] = round(hybrid_s / plain_s, 2)
             figures[f"{label}_network_share_{key}"] = round(network_share, 3)

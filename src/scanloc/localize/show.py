@@ -18,7 +18,7 @@ from scanloc.localize.hypothesis_tracker import TrackerParams
 from scanloc.localize.hypothesis_verification import VerifierParams
 from scanloc.localize.kinds import KIND_SECTIONS, config_file, kind_of
 from scanloc.localize.learned_localizer import LearnedParams
-from scanloc.localize.mcl.config import MclConfig
+from scanloc.localize.mcl.config import MclConfig, sensor_model_params
 from scanloc.localize.mcl.parts import MIXINGS, PROPOSALS, WEIGHTINGS
 
 _PLAIN = {
@@ -42,7 +42,7 @@ def resolved(cfg: Mapping[str, Any]) -> dict[str, Any]:
             "laser_model_type": mcl.laser_model_type,
             "map_half_cell_offset": mcl.map_half_cell_offset,
             **dataclasses.asdict(mcl.laser),
-            **dataclasses.asdict(mcl.sensor),
+            **sensor_model_params(cfg, where),
         }
         for registry in (PROPOSALS, MIXINGS, WEIGHTINGS):
             name, params = registry.params(cfg, where)

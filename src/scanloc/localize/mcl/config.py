@@ -85,8 +85,7 @@ class MclConfig:
                 )
 
         def part(cls_: type) -> Any:
-            own = {k: v for k, v in sensor.items() if k in _names(cls_)}
-            return parse_section(cls_, {"sensor": own}, "sensor", where)
+            return sensor_part(cls_, config, where)
 
         choice = part(_SensorChoice)
         if choice.laser_model_type not in SENSOR_MODELS:
@@ -114,6 +113,23 @@ class MclConfig:
     def with_filter(self, **changes: Any) -> MclConfig:
         """A copy with some FilterParams changed."""
         return replace(self, filter=replace(self.filter, **changes))
+
+
+def sensor_part(part: type, config: Mapping[str, Any], where: str) -> Any:
+    """One part's parameters (`LaserParams`, a sensor model's `Params`) from the `sensor`
+    section's keys it has."""
+    own = {k: v for k, v in section_values(config, "sensor", where).items() if k in _names(part)}
+    return parse_section(part, {"sensor": own}, "sensor", where)
+
+
+def sensor_model_params(config: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """Every sensor model's parameters as the `sensor` section sets them (ROS reads them all,
+    whichever model it runs)."""
+    return {
+        f.name: getattr(sensor_part(params, config, where), f.name)
+        for params in _MODEL_PARAMS
+        for f in fields(params)
+    }
 
 
 def ros_sections(ros: Mapping[str, Any], where: str) -> dict[str, dict[str, Any]]:
