@@ -152,9 +152,7 @@ def main() -> None:
         figures[f"amcl_hz_{key}"] = round(1.0 / plain_s, 1)
         config = MclConfig.from_ros(params | {"publish_every_update": True}, where="benchmark")
         for label, name in HYBRIDS.items():
-            proposal, mixing, weighting = hybrid_parts(
-                name, grid, spec, hypotheses_of, verified_of
-            )
+            proposal, mixing, weighting = hybrid_parts(name, grid, spec, hypotheses_of, verified_of)
             filter_ = build_filter(
                 grid, spec, config, 0, proposal=proposal, weighting=weighting, mixing=mixing
             )

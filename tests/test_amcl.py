@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -10,11 +11,12 @@ import pandas as pd
 import pytest
 
 from scanloc.estimates import TABLE_COLUMNS
-from scanloc.localize.catalog import META_KEYS, raw_config
+from scanloc.localize.catalog import raw_config
 from scanloc.localize.clustering import cluster_estimate
 from scanloc.localize.kld_resampling import kld_limit
-from scanloc.localize.mcl.config import MclConfig, build_filter, known_keys, run_mcl
+from scanloc.localize.mcl.config import MclConfig, build_filter, run_mcl
 from scanloc.localize.mcl.filter import FilterParams, ParticleFilter
+from scanloc.localize.mcl.sensor_models import SENSOR_MODELS
 from scanloc.pose import compose, inverse
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import Trajectory
@@ -28,7 +30,12 @@ CONF = ROOT / "conf" / "localizer"
 
 def ros(**params: object) -> MclConfig:
     """The filter's parts from ROS-named parameters (ROS 1's defaults for the others)."""
-    return MclConfig.from_ros(params, source="test")
+    return MclConfig.from_ros(params, where="test")
+
+
+def shipped(name: str) -> MclConfig:
+    """The filter's parts of conf/localizer/<name>.yaml (its `filter`, `motion`, `sensor`)."""
+    return MclConfig.from_sections(raw_config(name, CONF), f"conf/localizer/{name}.yaml")
 
 
 def amcl_filter(grid: OccupancyGrid, seed: int = 0, **params: object) -> ParticleFilter:
@@ -152,58 +159,94 @@ def test_estimate_is_carried_by_odometry_between_updates() -> None:
     np.testing.assert_allclose(compose(inverse(moved), moved), np.zeros(3), atol=1e-12)
 
 
-@pytest.mark.parametrize("name", ["amcl", "amcl_nav2", "amcl_ros_exact", "amcl_best"])
+# Keys each shipped config writes, of each of its sections: what the test below must reach.
+WRITTEN = {
+    "amcl": {"initial_cov_xx"},
+    "amcl_nav2": {"resample_interval", "odom_model_type", "laser_max_beams", "laser_z_hit"},
+    "amcl_ros_exact": {"initial_cov_aa", "map_half_cell_offset"},
+    "amcl_best": {"update_min_d", "laser_model_type", "odom_model_type"},
+}
+
+
+@pytest.mark.parametrize("name", sorted(WRITTEN))
 def test_shipped_config_sets_every_parameter_it_names(name: str) -> None:
     """Every filter parameter of a shipped config reaches the part that owns it, with the
-    type of its default (metadata such as `group` and `note` is skipped)."""
+    type of its default (the `meta` section is the catalog's, not the filter's)."""
     cfg = raw_config(name, CONF)
-    config = MclConfig.from_ros(cfg)
-    parts = (config.filter, config.odometry, config.laser, config.sensor, config)
+    config = shipped(name)
+    parts = {
+        "filter": (config.filter,),
+        "motion": (config.odometry,),
+        "sensor": (config.laser, config.sensor, config),
+    }
+    model_keys = {f.name for model in SENSOR_MODELS.values() for f in fields(model.Params)}
     reached = set()
-    for key, value in cfg.items():
-        if key in META_KEYS:
-            continue
-        owners = [part for part in parts if hasattr(part, key)]
-        if not owners:  # a key of a sensor model this config does not choose
-            assert key in known_keys(), key
-            continue
-        for part in owners:
-            assert getattr(part, key) == value, key
-            assert type(getattr(part, key)) is type(getattr(type(part)(), key)), key
-        reached.add(key)
-    assert {"laser_model_type", "odom_alpha1", "resample_interval", "laser_max_beams"} <= reached
+    for section, section_parts in parts.items():
+        for key, value in (cfg.get(section) or {}).items():
+            owners = [part for part in section_parts if hasattr(part, key)]
+            if not owners:  # a key of a sensor model this config does not choose
+                assert section == "sensor" and key in model_keys, (section, key)
+                continue
+            for part in owners:
+                assert getattr(part, key) == value, key
+                assert type(getattr(part, key)) is type(getattr(type(part)(), key)), key
+            reached.add(key)
+    assert WRITTEN[name] <= reached
+    assert set(cfg) <= {"meta", "filter", "motion", "sensor"}, set(cfg)
 
 
 def test_configs_load_and_unknown_keys_are_rejected() -> None:
     # The ROS 1 config differs from the built-in (ROS 1) defaults only where it says so.
-    shipped = MclConfig.from_ros(raw_config("amcl", CONF))
-    assert shipped.with_filter(initial_cov_xx=0.25, initial_cov_yy=0.25) != ros()
+    amcl = shipped("amcl")
+    assert amcl.with_filter(initial_cov_xx=0.25, initial_cov_yy=0.25) != ros()
     assert (
-        shipped.with_filter(
+        amcl.with_filter(
             initial_cov_xx=0.25, initial_cov_yy=0.25, initial_cov_aa=(math.pi / 12) ** 2
         )
         == ros()
     )
-    # Meta keys are skipped, an int is accepted for a float parameter and stored as a float.
-    meta = {"name": "x", "kind": "amcl", "mode": "global", "seed": 3, "group": "global"}
-    loaded = MclConfig.from_ros({**meta, "update_min_d": 1, "laser_max_beams": 40})
-    assert loaded.filter == FilterParams(update_min_d=1.0)
+    # The `meta` section is the catalog's, not the filter's; the start (`mode`) and the seed
+    # are the `filter` section's; an int is accepted for a float parameter, stored as a float.
+    meta = {"name": "x", "kind": "particle_filter", "group": "global"}
+    loaded = MclConfig.from_sections(
+        {
+            "meta": meta,
+            "filter": {"mode": "global", "seed": 3, "update_min_d": 1},
+            "sensor": {"laser_max_beams": 40},
+        },
+        "conf/localizer/x.yaml",
+    )
+    assert loaded.filter == FilterParams(mode="global", seed=3, update_min_d=1.0)
     assert loaded.laser.laser_max_beams == 40
     assert isinstance(loaded.filter.update_min_d, float)
-    # Errors name the config file and the field.
-    with pytest.raises(ValueError, match=r"conf/localizer/x\.yaml: field 'max_beams': unknown"):
-        MclConfig.from_ros({"name": "x", "max_beams": 60})
-    with pytest.raises(ValueError, match=r"amcl\.yaml parameter 'max_particles' must be of type"):
-        MclConfig.from_ros({"name": "amcl", "max_particles": 10.5})
-    with pytest.raises(ValueError, match=r"amcl\.yaml: odom_model_type must be one of"):
-        MclConfig.from_ros({"name": "amcl", "odom_model_type": "omni"})
-    with pytest.raises(ValueError, match=r"amcl\.yaml: field 'laser_model_type'"):
-        MclConfig.from_ros({"name": "amcl", "laser_model_type": "ray"})
+    # A flat ROS mapping holds ROS parameters only: a meta key there is an unknown one.
+    with pytest.raises(ValueError, match=r"x\.yaml: unknown parameter 'name'"):
+        MclConfig.from_ros({"name": "x", "update_min_d": 1.0}, where="x.yaml")
+    # Errors name the config file, the section and the key.
+    where = "conf/localizer/amcl.yaml"
+    with pytest.raises(ValueError, match=r"x\.yaml: section 'sensor': unknown key 'max_beams'"):
+        MclConfig.from_sections({"sensor": {"max_beams": 60}}, "conf/localizer/x.yaml")
+    with pytest.raises(ValueError, match=r"x\.yaml: section 'filter': unknown key 'max_beams'"):
+        MclConfig.from_sections({"filter": {"max_beams": 60}}, "conf/localizer/x.yaml")
+    with pytest.raises(ValueError, match=r"x\.yaml: unknown parameter 'max_beams'"):
+        MclConfig.from_ros({"max_beams": 60}, where="conf/localizer/x.yaml")
+    with pytest.raises(
+        ValueError, match=r"amcl\.yaml: section 'filter': .*'max_particles' must be of type"
+    ):
+        MclConfig.from_sections({"filter": {"max_particles": 10.5}}, where)
+    with pytest.raises(ValueError, match=r"amcl\.yaml: section 'motion': odom_model_type must be"):
+        MclConfig.from_sections({"motion": {"odom_model_type": "omni"}}, where)
+    with pytest.raises(ValueError, match=r"amcl\.yaml: section 'sensor': key 'laser_model_type'"):
+        MclConfig.from_sections({"sensor": {"laser_model_type": "ray"}}, where)
     with pytest.raises(ValueError, match="min_particles"):
         FilterParams(min_particles=10, max_particles=5)
     # A key of a model not chosen is still checked (ROS reads every parameter).
     with pytest.raises(ValueError, match="laser_lambda_short"):
         MclConfig.from_ros({"laser_model_type": "likelihood_field", "laser_lambda_short": 0.0})
+    with pytest.raises(ValueError, match=r"section 'sensor': .*laser_lambda_short"):
+        MclConfig.from_sections(
+            {"sensor": {"laser_model_type": "likelihood_field", "laser_lambda_short": 0.0}}, where
+        )
 
 
 def test_bad_input_is_rejected_clearly() -> None:
@@ -240,7 +283,7 @@ def test_map1_accuracy_with_the_shipped_config(stdr_maps_dir: Path) -> None:
     grid = load_map(stdr_maps_dir / "sparse_obstacles.yaml")
     traj = drive_trajectory(grid, 600, seed=7)
     ranges = ug01_scans(grid, traj.truth, seed=8)
-    params = MclConfig.from_ros(raw_config("amcl", CONF))
+    params = shipped("amcl")
     pos, head = errors(
         run_mcl(grid, SPEC, traj, ranges, params, mode="tracking", seed=0).table, traj
     )

@@ -10,15 +10,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scanloc.localize.catalog import META_KEYS, raw_config
+from scanloc.localize.catalog import raw_config
 from scanloc.localize.kld_resampling import _pick_indices
-from scanloc.localize.mcl.config import MclConfig, known_keys, run_mcl
+from scanloc.localize.mcl.config import run_mcl
 from scanloc.localize.mcl.filter import FilterParams, ParticleFilter
+from scanloc.localize.show import resolved
 from scanloc.pose import compose, inverse, wrap_angle, wrap_pi
 from scanloc.sensor.laser import LaserSpec
 from scanloc.trajectory.drive import drive_trajectory
 from small_world import small_map, ug01_scans
-from test_amcl import CONF, amcl_filter, ros
+from test_amcl import CONF, amcl_filter, ros, shipped
 
 SPEC = LaserSpec()
 
@@ -83,7 +84,17 @@ SCANLOC_SWITCHES = {
     "publish_every_update",
     "beam_lut_resolution",
     "beam_lut_angles",
+    "mode",
+    "seed",
 }
+# The filter's policies (the `filter` section) and parts (their own sections) that amcl runs.
+AMCL_POLICIES = {"update_trigger": "on_motion", "resampler": "kld", "estimator": "heaviest_cluster"}
+AMCL_PARTS = {
+    "proposal": {"type": "uniform"},
+    "mixing": {"type": "none"},
+    "weighting": {"type": "prior"},
+}
+FILTER_SECTIONS = ("filter", "motion", "sensor")
 
 
 # ---------------------------------------------------------------- configs
@@ -98,17 +109,24 @@ SCANLOC_SWITCHES = {
     ],
 )
 def test_configs_hold_the_reference_defaults(name: str, reference: dict, departures: set) -> None:
-    cfg = {k: v for k, v in raw_config(name, CONF).items() if k not in META_KEYS}
-    # Every parameter the port has is written out in each config.
-    assert set(cfg) == set(known_keys())
+    """What each config amounts to (every key of its `filter`, `motion` and `sensor` sections,
+    the parts' defaults filled in) is its reference's, but for its documented departures."""
+    whole = resolved(raw_config(name, CONF))
+    cfg = {key: value for section in FILTER_SECTIONS for key, value in whole[section].items()}
+    assert sum(len(whole[section]) for section in FILTER_SECTIONS) == len(cfg)  # no key twice
+    # Every parameter of the reference is one of the port's.
+    assert set(reference) <= set(cfg)
     for key, value in reference.items():
         if key not in departures:
             assert cfg[key] == pytest.approx(value), (name, key)
-    params = MclConfig.from_ros(cfg)
+    params = shipped(name)
     assert params.map_half_cell_offset is (name == "amcl_ros_exact")
     for key in departures:
         assert cfg[key] != pytest.approx(reference[key]), (name, key, "a documented departure")
-    assert set(cfg) - set(reference) == SCANLOC_SWITCHES
+    assert set(cfg) - set(reference) == SCANLOC_SWITCHES | set(AMCL_POLICIES)
+    assert {key: cfg[key] for key in AMCL_POLICIES} == AMCL_POLICIES
+    assert cfg["mode"] == "tracking"
+    assert {section: whole[section] for section in AMCL_PARTS} == AMCL_PARTS
 
 
 def test_a_config_without_parameters_runs_as_ross_defaults_written_out() -> None:
@@ -218,18 +236,20 @@ def test_first_estimate_is_the_initialisations_as_in_ros() -> None:
 def test_recovery_averages_follow_amcls_ema() -> None:
     amcl, _ = counting_filter(recovery_alpha_slow=0.01, recovery_alpha_fast=0.5)
     n = len(amcl.poses)
-    assert amcl.w_slow == amcl.w_fast == 0.0  # pf_init
+    recovery = amcl.recovery
+    assert recovery.slow == recovery.fast == 0.0  # pf_init
     factors = iter([2.0, 1.0, 4.0])
     amcl.sensor_model = lambda poses, scan, c: np.full(len(poses), next(factors))
     amcl.sensor_update(SCAN)  # w_avg = 2 / n: the first value is taken as it is
-    assert amcl.w_slow == pytest.approx(2.0 / n) and amcl.w_fast == pytest.approx(2.0 / n)
+    assert recovery.slow == pytest.approx(2.0 / n) and recovery.fast == pytest.approx(2.0 / n)
     amcl.sensor_update(SCAN)  # weights were normalised: w_avg = 1 / n
-    assert amcl.w_slow == pytest.approx(2 / n + 0.01 * (1 / n - 2 / n))
-    assert amcl.w_fast == pytest.approx(2 / n + 0.5 * (1 / n - 2 / n))
-    slow, fast = amcl.w_slow, amcl.w_fast
+    assert recovery.slow == pytest.approx(2 / n + 0.01 * (1 / n - 2 / n))
+    assert recovery.fast == pytest.approx(2 / n + 0.5 * (1 / n - 2 / n))
+    slow, fast = recovery.slow, recovery.fast
     amcl.sensor_update(SCAN)
-    assert amcl.w_slow == pytest.approx(slow + 0.01 * (4 / n - slow))
-    assert amcl.w_fast == pytest.approx(fast + 0.5 * (4 / n - fast))
+    assert recovery.slow == pytest.approx(slow + 0.01 * (4 / n - slow))
+    assert recovery.fast == pytest.approx(fast + 0.5 * (4 / n - fast))
+    assert amcl.recovery is recovery  # the filter's own averages, followed in place
 
 
 def test_injection_only_when_the_fast_average_falls_below_the_slow_one() -> None:
@@ -237,16 +257,16 @@ def test_injection_only_when_the_fast_average_falls_below_the_slow_one() -> None
     amcl, _ = counting_filter()
     start = np.array([2.5, 2.0, 0.3])
     # w_fast > w_slow: things are getting better, w_diff = 1 − w_fast / w_slow < 0, no injection
-    amcl.w_slow, amcl.w_fast = 1.0, 1.5
+    amcl.recovery.slow, amcl.recovery.fast = 1.0, 1.5
     amcl.resample()
     assert np.allclose(amcl.poses, start, atol=0.1)
-    assert (amcl.w_slow, amcl.w_fast) == (1.0, 1.5)  # kept
+    assert (amcl.recovery.slow, amcl.recovery.fast) == (1.0, 1.5)  # kept
     # w_fast = 0.2 w_slow: w_diff = 0.8, four fifths of the draws are random free poses
-    amcl.w_slow, amcl.w_fast = 1.0, 0.2
+    amcl.recovery.slow, amcl.recovery.fast = 1.0, 0.2
     amcl.resample()
     injected = np.hypot(*(amcl.poses[:, :2] - start[:2]).T) > 0.1
     assert 0.7 < injected.mean() < 0.9
-    assert (amcl.w_slow, amcl.w_fast) == (0.0, 0.0)  # amcl resets after injecting
+    assert (amcl.recovery.slow, amcl.recovery.fast) == (0.0, 0.0)  # amcl resets after injecting
     # Injected particles are free-cell centres, headings spread over the circle.
     col, row = grid.world_to_cell(amcl.poses[injected, 0], amcl.poses[injected, 1])
     assert grid.free[row, col].all()

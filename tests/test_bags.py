@@ -208,9 +208,12 @@ def localize_and_score(run_dir: Path, map_yaml: Path) -> tuple[dict[str, pd.Data
     )
     amcl = yaml.safe_load((REPO / "conf" / "localizer" / "amcl.yaml").read_text())
     configs = {
-        "amcl": amcl | {"max_particles": 1000},
+        "amcl": amcl | {"filter": amcl["filter"] | {"max_particles": 1000}},
         "amcl_global": amcl
-        | {"mode": "global", "max_particles": 3000, "laser_model_type": "likelihood_field_prob"},
+        | {
+            "filter": amcl["filter"] | {"mode": "global", "max_particles": 3000},
+            "sensor": {"laser_model_type": "likelihood_field_prob"},
+        },
     }
     tables = {name: run_localizer(cfg, inputs).table for name, cfg in configs.items()}
     truth, kidnaps = load_truth(run_dir)

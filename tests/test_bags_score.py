@@ -42,7 +42,7 @@ def amcl_run(tmp_path_factory: pytest.TempPathFactory, room: OccupancyGrid) -> P
     ranges = simulate_scans(room, LaserSpec(), traj.truth, None, rng_seed=2)
     save_trajectory(traj, root / "run", ranges, {"name": "run"}, room)
     cfg = yaml.safe_load((REPO / "conf" / "localizer" / "amcl.yaml").read_text())
-    cfg["max_particles"] = 500
+    cfg["filter"]["max_particles"] = 500
     inputs = LocalizeInputs(traj, ranges, root / "map" / "map.yaml", LaserSpec())
     run = run_localizer(cfg, inputs)
     (root / "localize").mkdir()

@@ -563,10 +563,14 @@ def inside(path: str, declared: list[str]) -> bool:
 
 def localizer_inputs(localizer: dict[str, Any]) -> list[str]:
     """Paths one localizer config reads beside the trajectory and the map."""
-    if localizer["kind"] in ("cnn", "fusion"):
-        return localizer["models"] + ([localizer["member_dir"]] if localizer["member_dir"] else [])
-    if "model" in localizer:  # the learned localizer, its tracking and the hybrid
-        return [localizer["model"]]
+    if localizer["meta"]["kind"] in ("cnn", "fusion"):
+        ensemble = localizer["ensemble"]
+        return ensemble["models"] + ([ensemble["member_dir"]] if ensemble.get("member_dir") else [])
+    if "learned" in localizer:  # the learned localizer, its tracking and the hybrid
+        learned = localizer["learned"]
+        return [learned["model"]] + (
+            [learned["calibration_scans"]] if learned.get("verified") else []
+        )
     return []
 
 
@@ -578,7 +582,7 @@ def config_inputs(cfg: dict[str, Any]) -> list[str]:
     paths = [cfg[k] for k in keys if k in cfg]
     paths += cfg.get("localize_roots", [])
     localizers = cfg.get("localizers") or {}
-    needs_map = any(loc["kind"] not in ("cnn", "fusion") for loc in localizers.values())
+    needs_map = any(loc["meta"]["kind"] not in ("cnn", "fusion") for loc in localizers.values())
     if "map_yaml" in cfg and (not localizers or needs_map):
         paths.append(cfg["map_yaml"])
     if cfg.get("init") == "pretrained":

@@ -37,8 +37,13 @@ def _without(cfg: dict, section: str, key: str) -> dict:
     """`cfg` with `section.key` as it would be if the file did not write it: the parents'
     value, else nothing (the part's default)."""
     out = copy.deepcopy(cfg)
-    parents = [p for p in yaml.safe_load((CONF / f"{cfg['meta']['name']}.yaml").read_text())
-               .get("defaults", []) if p != "_self_"]
+    parents = [
+        p
+        for p in yaml.safe_load((CONF / f"{cfg['meta']['name']}.yaml").read_text()).get(
+            "defaults", []
+        )
+        if p != "_self_"
+    ]
     inherited = {}
     for parent in parents:
         inherited = {**inherited, **(raw_config(parent, CONF).get(section) or {})}
@@ -75,7 +80,7 @@ def test_every_shipped_config_resolves(name: str) -> None:
 
 def _sections_error(cfg: dict, match: str) -> None:
     grid = small_map()
-    context = PartsContext(grid, SPEC, hypotheses=lambda: (lambda scan: None))
+    context = PartsContext(grid, SPEC, hypotheses=lambda: lambda scan: None)
     with pytest.raises(ValueError, match=match):
         filter_from_sections(cfg, "conf/localizer/mine.yaml", context)
 
@@ -85,9 +90,7 @@ def _sections_error(cfg: dict, match: str) -> None:
     [("filter", "max_particle"), ("motion", "alpha1"), ("sensor", "z_hit")],
 )
 def test_an_unknown_key_names_the_file_the_section_and_the_key(section: str, key: str) -> None:
-    _sections_error(
-        {section: {key: 1}}, rf"mine\.yaml: section '{section}': unknown key '{key}'"
-    )
+    _sections_error({section: {key: 1}}, rf"mine\.yaml: section '{section}': unknown key '{key}'")
 
 
 def test_a_typed_section_checks_its_keys_against_its_type() -> None:

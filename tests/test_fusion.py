@@ -10,6 +10,8 @@ import pytest
 import yaml
 
 from scanloc.estimates import TABLE_COLUMNS, table_covariances, table_poses
+from scanloc.localize.catalog import raw_config
+from scanloc.localize.config_params import parse_section
 from scanloc.localize.fusion import FusionParams, fuse_odometry
 from scanloc.pose import wrap_angle
 
@@ -183,9 +185,10 @@ def test_single_network_without_covariance_uses_the_floor() -> None:
 
 
 def test_config_and_bad_params_are_rejected_clearly() -> None:
-    section = yaml.safe_load((CONF / "cnn_ekf.yaml").read_text())["fusion"]
+    cfg = raw_config("cnn_ekf", CONF)
+    section = cfg.get("fusion") or {}  # the config writes what departs from the defaults
     # every key of the shipped section reaches its field, with the field's type
-    shipped = FusionParams.from_config(section)
+    shipped = parse_section(FusionParams, cfg, "fusion", "conf/localizer/cnn_ekf.yaml")
     for key, value in section.items():
         assert getattr(shipped, key) == value, key
         assert type(getattr(shipped, key)) is type(getattr(FusionParams(), key)), key
@@ -201,6 +204,8 @@ def test_config_and_bad_params_are_rejected_clearly() -> None:
     assert isinstance(loaded.min_std_xy, float)
     with pytest.raises(ValueError, match="unknown fusion parameter 'alpha1'"):
         FusionParams.from_config({"alpha1": 0.1})
+    with pytest.raises(ValueError, match=r"x\.yaml: section 'fusion': unknown key 'alpha1'"):
+        parse_section(FusionParams, {"fusion": {"alpha1": 0.1}}, "fusion", "conf/localizer/x.yaml")
     with pytest.raises(ValueError, match="'reinit_after' must be of type int"):
         FusionParams.from_config({"reinit_after": 2.5})
     with pytest.raises(ValueError, match="measurement_inflation"):

@@ -13,7 +13,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scanloc.localize.hybrid import HybridParams, ImportanceWeights, LearnedProposal
+from scanloc.localize.hybrid import (
+    ConstantMixing,
+    ConstantMixingParams,
+    ImportanceWeightParams,
+    ImportanceWeights,
+    LearnedProposal,
+    LearnedProposalParams,
+)
 from scanloc.localize.mcl.config import build_filter
 from scanloc.localize.mcl.proposals import UniformProposal
 from scanloc.pose import wrap_angle
@@ -148,13 +155,15 @@ def summary(poses: np.ndarray, weights: np.ndarray, twin_of: np.ndarray) -> np.n
 
 
 def filter_summary(truth, scans, twin, seed: int) -> np.ndarray:
-    hybrid = HybridParams(mixture_share=0.5, kidnap_probability=EPS, uniform_share=0.1)
     means = np.stack([truth[0], twin])
     hypotheses = hypotheses_from(lambda _: means, 0.15)
-    proposal = LearnedProposal(hypotheses, UniformProposal(GRID), hybrid)
+    params = LearnedProposalParams(uniform_share=0.1)
+    proposal = LearnedProposal(hypotheses, UniformProposal(GRID), params)
+    weighting = ImportanceWeights(proposal, ImportanceWeightParams(kidnap_probability=EPS))
+    mixing = ConstantMixing(ConstantMixingParams(share=0.5))
     config = ros(**SENSOR, max_particles=4000, min_particles=4000)
     pf = build_filter(
-        GRID, SPEC, config, seed, proposal=proposal, weighting=ImportanceWeights(proposal, hybrid)
+        GRID, SPEC, config, seed, proposal=proposal, weighting=weighting, mixing=mixing
     )
     pf.initialize_pose(INITIAL, INITIAL_COV)
     for t in range(len(truth)):

@@ -114,9 +114,23 @@ def test_the_margin_is_to_the_best_hypothesis_elsewhere() -> None:
     assert inlier_margins(np.array([0.7]), poses[:1], VerifierParams()) == pytest.approx([0.7])
 
 
-def test_unknown_verify_fields_are_named() -> None:
-    with pytest.raises(ValueError, match="unknown fields \\['iteration'\\]"):
-        VerifierParams.from_config({"iteration": 3})
+def test_unknown_verifier_keys_are_named(monkeypatch) -> None:
+    """The `verifier` section of a verified localizer: an unknown key names the file, the
+    section and the key; a value the verifier cannot work with is refused."""
+    import scanloc.localize.kinds as kinds
+
+    monkeypatch.setattr(kinds, "scan_hypotheses", lambda *a, **k: (None, lambda s: None, 0.0))
+    traj = Trajectory(np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
+    inputs = LocalizeInputs(traj, np.zeros((1, SPEC.num_beams)), Path("unused.yaml"), SPEC)
+    cfg = verified_config("mine", verifier={"iteration": 3})
+    with pytest.raises(
+        ValueError, match=r"mine\.yaml: section 'verifier': unknown key 'iteration'"
+    ):
+        learned_hypotheses(cfg, inputs)
+    with pytest.raises(ValueError, match=r"mine\.yaml: section 'verifier': need iterations >= 0"):
+        learned_hypotheses(verified_config("mine", verifier={"match_beams": 2}), inputs)
+    with pytest.raises(ValueError, match="distances must be > 0"):
+        VerifierParams(huber=0.0)
 
 
 def test_calibration_recovers_a_known_logistic_law() -> None:
@@ -193,11 +207,30 @@ def test_calibration_without_a_single_right_hypothesis_is_a_small_constant() -> 
     assert np.allclose(calibration.probability(np.zeros((4, 3))), 0.5 / 100)
 
 
-def test_a_verified_config_without_calibration_scans_names_the_field() -> None:
+def verified_config(name: str, verifier: dict | None = None, **learned: object) -> dict:
+    """A verified learned localizer's config: its `learned` and `verifier` sections."""
+    return {
+        "meta": {"name": name},
+        "learned": {
+            "model": "m.pt",
+            "verified": True,
+            "calibration_scans": "val",
+            "calibration_count": 5,
+            "k": 20,
+            **learned,
+        },
+        "verifier": verifier or {"iterations": 3},
+    }
+
+
+def test_a_verified_config_without_calibration_scans_names_the_key() -> None:
     traj = Trajectory(np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
     inputs = LocalizeInputs(traj, np.zeros((1, SPEC.num_beams)), Path("unused.yaml"), SPEC)
-    cfg = {"name": "mine", "model": "missing.pt", "verify": {"iterations": 3}}
-    with pytest.raises(ValueError, match=r"mine\.yaml: field 'calibration_scans': expected"):
+    cfg = verified_config("mine", model="missing.pt")
+    del cfg["learned"]["calibration_scans"]
+    with pytest.raises(
+        ValueError, match=r"mine\.yaml: section 'learned': key 'calibration_scans': expected"
+    ):
         learned_hypotheses(cfg, inputs)
 
 
@@ -222,15 +255,13 @@ def test_localizers_of_one_stage_share_a_calibration_fitted_once(monkeypatch) ->
     traj = Trajectory(np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
     inputs = LocalizeInputs(traj, np.zeros((1, SPEC.num_beams)), Path("unused.yaml"), SPEC)
     inputs.__dict__["grid"] = None  # no map needed by the stand-in verifier
-    cfg = {"model": "m.pt", "calibration_scans": "val", "calibration_count": 5, "k": 20}
-    cfg["verify"] = {"iterations": 3}
     for name in ("scanlocnet_verified", "hybrid_verified"):
-        learned_hypotheses({**cfg, "name": name}, inputs)
+        learned_hypotheses(verified_config(name), inputs)
     assert fits == [5]
-    learned_hypotheses({**cfg, "name": "fewer", "calibration_count": 3}, inputs)
-    learned_hypotheses({**cfg, "name": "other_k", "k": 10}, inputs)
+    learned_hypotheses(verified_config("fewer", calibration_count=3), inputs)
+    learned_hypotheses(verified_config("other_k", k=10), inputs)
     assert fits == [5, 3, 5]
     other_stage = LocalizeInputs(traj, np.zeros((1, SPEC.num_beams)), Path("unused.yaml"), SPEC)
     other_stage.__dict__["grid"] = None
-    learned_hypotheses({**cfg, "name": "scanlocnet_verified"}, other_stage)
+    learned_hypotheses(verified_config("scanlocnet_verified"), other_stage)
     assert fits == [5, 3, 5, 5]

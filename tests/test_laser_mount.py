@@ -107,5 +107,6 @@ def test_every_learned_kind_gets_base_poses_from_a_mounted_laser(monkeypatch) ->
     monkeypatch.setattr(kinds, "scan_hypotheses", lambda *a, **k: (None, network, 0.0))
     traj = Trajectory(np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
     inputs = LocalizeInputs(traj, np.zeros((1, SPEC.num_beams)), Path("m.yaml"), SPEC, MOUNT)
-    hypotheses_of, _ = kinds.learned_hypotheses({"name": "mine", "model": "m.pt"}, inputs)
+    cfg = {"meta": {"name": "mine"}, "learned": {"model": "m.pt"}}
+    hypotheses_of, _ = kinds.learned_hypotheses(cfg, inputs)
     assert np.allclose(hypotheses_of(np.zeros(SPEC.num_beams)).poses[0], bases, atol=1e-12)

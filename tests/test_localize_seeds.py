@@ -16,6 +16,8 @@ from omegaconf import OmegaConf
 
 from scanloc.estimates import estimate_table
 from scanloc.evaluate.seeds import evaluate_filter_seeds
+from scanloc.localize.kinds import with_seed
+from scanloc.localize.mcl.config import MclConfig
 from scanloc.stages.localize_seeds import seed_runs
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import save_trajectory
@@ -27,12 +29,29 @@ REPO = Path(__file__).resolve().parents[1]
 
 def test_seeded_kinds_run_per_seed_and_the_others_once() -> None:
     cfg = OmegaConf.create({"filter_seeds": [3, 4, 5]})
-    localizers = {"pf": {"kind": "amcl"}, "net": {"kind": "learned"}, "hy": {"kind": "hybrid"}}
+    localizers = {
+        "pf": {"meta": {"kind": "particle_filter"}},
+        "net": {"meta": {"kind": "learned"}, "learned": {"model": "m.pt"}},
+        "hy": {"meta": {"kind": "particle_filter"}, "proposal": {"type": "learned"}},
+    }
     assert seed_runs(cfg, localizers) == [
         ("pf", 3), ("pf", 4), ("pf", 5), ("net", 3), ("hy", 3), ("hy", 4), ("hy", 5)
     ]  # fmt: skip
     with pytest.raises(ValueError, match=r"filter_seeds.*distinct"):
         seed_runs(OmegaConf.create({"filter_seeds": [1, 1]}), localizers)
+    with pytest.raises(ValueError, match=r"section 'meta': key 'kind': expected one of"):
+        seed_runs(cfg, {"old": {"meta": {"kind": "amcl"}}})
+
+
+def test_a_seed_is_set_in_the_filter_section() -> None:
+    """The seed a run uses goes where the filter reads it, beside the section's other keys,
+    and the config it came from is left alone."""
+    cfg = {"meta": {"name": "amcl", "kind": "particle_filter"}, "filter": {"max_particles": 300}}
+    seeded = with_seed(cfg, 4)
+    assert seeded["filter"] == {"max_particles": 300, "seed": 4}
+    assert seeded["meta"] == cfg["meta"] and "seed" not in cfg["filter"]
+    assert MclConfig.from_sections(seeded, "amcl.yaml").filter.seed == 4
+    assert with_seed({"meta": cfg["meta"]}, 2)["filter"] == {"seed": 2}
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +69,7 @@ def test_the_stage_writes_one_table_per_seed(small_run: Path) -> None:
     cmd = [sys.executable, "-m", "scanloc.stages.localize_seeds", "trajectory=tiny"]
     cmd += [f"trajectory_dir={small_run / 'run'}", f"map_yaml={small_run / 'map' / 'map.yaml'}"]
     cmd += ["compared=[amcl]", "filter_seeds=[0,1,2]"]
-    cmd += ["++localizers.amcl.max_particles=300", f"out_dir={out}"]
+    cmd += ["++localizers.amcl.filter.max_particles=300", f"out_dir={out}"]
     cmd += [f"timing_path={small_run / 'timing.json'}", f"timing_dir={small_run / 'timing'}"]
     cmd += [f"hydra.run.dir={small_run / 'hydra'}"]
     env = os.environ | {"PYTHONPATH": str(REPO / "src")}

@@ -15,10 +15,12 @@ import numpy as np
 import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 from scanloc.estimates import Localization, estimate_table
 from scanloc.localize.catalog import localizer_overrides, stage_localizers
-from scanloc.localize.kinds import LOCALIZER_KINDS, LocalizeInputs, register_kind
+from scanloc.localize.kinds import KIND_SECTIONS, LOCALIZER_KINDS, LocalizeInputs, register_kind
+from scanloc.localize.show import resolved
 from scanloc.stages.localize import run_stage
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import save_trajectory
@@ -27,30 +29,33 @@ from small_world import small_map, ug01_scans
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 DUMMY = """\
-name: dummy
-kind: dummy_offset
-group: tracking
-stages: [localize]
-note: "a test's localizer: the truth, shifted by `offset`"
-offset: [0.25, 0.0, 0.0]
+meta:
+  name: dummy
+  kind: dummy_offset
+  group: tracking
+  stages: [localize]
+  note: "a test's localizer: the truth, shifted by `offset`"
+shift:
+  offset: [0.25, 0.0, 0.0]
 """
 
 
 @pytest.fixture
 def dummy_kind() -> Iterator[None]:
-    """A kind registered by the test alone: the true poses shifted by the config's offset."""
+    """A kind registered by the test alone, reading its own section: the true poses shifted by
+    the `shift` section's offset."""
 
-    @register_kind("dummy_offset")
+    @register_kind("dummy_offset", ("shift",))
     def run_dummy(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
         traj = inputs.trajectory
         steps = len(traj.times)
-        means = traj.truth + np.asarray(cfg["offset"], dtype=np.float64)
+        means = traj.truth + np.asarray(cfg["shift"]["offset"], dtype=np.float64)
         covs = np.tile(np.eye(3) * 0.01, (steps, 1, 1))
         table = estimate_table(np.arange(steps), traj.times, means, covs, 1)
         return Localization(table, 0.0, np.zeros(steps))
 
     yield
-    del LOCALIZER_KINDS["dummy_offset"]
+    del LOCALIZER_KINDS["dummy_offset"], KIND_SECTIONS["dummy_offset"]
 
 
 @pytest.fixture
@@ -60,7 +65,7 @@ def run_dir(tmp_path: Path) -> Path:
     conf = tmp_path / "conf"
     shutil.copytree(CONF, conf)
     for path in (conf / "localizer").glob("*.yaml"):
-        text = re.sub(r"^stages: \[localize\]$", "stages: []", path.read_text(), flags=re.M)
+        text = re.sub(r"^(\s*)stages: \[localize\]$", r"\1stages: []", path.read_text(), flags=re.M)
         path.write_text(text)
     (conf / "localizer" / "dummy.yaml").write_text(DUMMY)
     grid = small_map()
@@ -99,8 +104,8 @@ def test_a_localizer_added_as_one_yaml_file_is_run_by_the_stage(
     truth = np.load(run_dir / "traj" / "truth.npy")
     np.testing.assert_allclose(table.x - truth[:, 0], 0.25, atol=1e-6)
     assert (run_dir / "timing.json").read_text().count('"dummy"') == 1
-    # A listed localizer's field, overridden on the command line, reaches its kind.
-    localize(run_dir, monkeypatch, "++localizers.dummy.offset=[0.0,-0.5,0.0]")
+    # A listed localizer's key, overridden on the command line, reaches its kind.
+    localize(run_dir, monkeypatch, "++localizers.dummy.shift.offset=[0.0,-0.5,0.0]")
     table = pd.read_csv(out / "dummy.csv")
     np.testing.assert_allclose(table.x - truth[:, 0], 0.0, atol=1e-6)
     np.testing.assert_allclose(table.y - truth[:, 1], -0.5, atol=1e-6)
@@ -128,8 +133,8 @@ def test_the_shipped_lists_hold_what_the_evaluation_and_report_need() -> None:
 
 
 def test_a_kind_cannot_be_registered_twice() -> None:
-    with pytest.raises(ValueError, match="'amcl' is registered twice"):
-        register_kind("amcl")(lambda cfg, inputs: Localization(pd.DataFrame(), 0.0, []))
+    with pytest.raises(ValueError, match="'particle_filter' is registered twice"):
+        register_kind("particle_filter")(lambda cfg, inputs: Localization(pd.DataFrame(), 0.0, []))
 
 
 def test_the_odometry_source_and_the_laser_mount_reach_the_localizers(
@@ -140,7 +145,7 @@ def test_the_odometry_source_and_the_laser_mount_reach_the_localizers(
     naming its folder."""
     seen: dict[str, Any] = {}
 
-    @register_kind("dummy_inputs")
+    @register_kind("dummy_inputs", ("shift",))
     def run_inputs(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
         seen["odometry"], seen["mount"] = inputs.trajectory.odometry, inputs.laser_mount
         steps = len(inputs.trajectory.times)
@@ -168,7 +173,7 @@ def test_the_odometry_source_and_the_laser_mount_reach_the_localizers(
         with pytest.raises(ValueError, match="field 'odometry': expected one of"):
             localize(run_dir, monkeypatch, "odometry=gps")
     finally:
-        del LOCALIZER_KINDS["dummy_inputs"]
+        del LOCALIZER_KINDS["dummy_inputs"], KIND_SECTIONS["dummy_inputs"]
 
 
 def test_a_name_with_hydras_global_keyword_is_composed_whole() -> None:
@@ -184,7 +189,7 @@ def test_a_name_with_hydras_global_keyword_is_composed_whole() -> None:
                 *localizer_overrides("localize", CONF / "localizer"),
             ],
         )
-    names = sorted(str(c.name) for c in cfg.localizers.values())
+    names = sorted(str(c.meta.name) for c in cfg.localizers.values())
     assert names == stage_localizers("localize", CONF / "localizer")
     assert "amcl_global_matched" in names
 
@@ -196,11 +201,21 @@ def composed_localizer(name: str) -> dict[str, Any]:
             config_name="localize",
             overrides=["map_name=sparse_obstacles", f"localizer={name}"],
         )
-    return dict(cfg.localizer)
+    return OmegaConf.to_container(cfg.localizer, resolve=True)  # type: ignore[return-value]
 
 
-# What a localizer says about itself, and what makes the hybrid the hybrid.
-IDENTITY = {"name", "kind", "group", "stages", "global_table", "note", "mode"}
+def flat(sections: Mapping[str, Any]) -> dict[str, Any]:
+    """`section.key` -> value of every section but `meta`."""
+    return {
+        f"{section}.{key}": value
+        for section, values in sections.items()
+        if section != "meta"
+        for key, value in values.items()
+    }
+
+
+# What a localizer says about itself (its `meta` section, left out by `flat`), and how it starts.
+IDENTITY = {"filter.mode"}
 
 
 @pytest.mark.parametrize(
@@ -209,14 +224,24 @@ IDENTITY = {"name", "kind", "group", "stages", "global_table", "note", "mode"}
 def test_matched_pairs_differ_only_in_what_they_claim(hybrid: str, baseline: str) -> None:
     """hybrid_real is amcl_real's filter (recovery off) plus the learned proposal, let in by
     its gate and by amcl's w_fast recovery (alpha_slow 0: the first update's mean weight is the
-    long-term one); hybrid_verified is the hybrid plus verification: every other filter key
-    the baseline sets is equal."""
-    ours, theirs = composed_localizer(hybrid), composed_localizer(baseline)
-    claimed = {"recovery_alpha_fast"} if hybrid == "hybrid_real" else set()
-    differing = {key for key in theirs if key not in IDENTITY and ours.get(key) != theirs.get(key)}
+    long-term one); hybrid_verified is the hybrid plus verification: every other key of the
+    sections the baseline writes is equal, compared with the parts' defaults filled in."""
+    ours_written, theirs_written = composed_localizer(hybrid), composed_localizer(baseline)
+    ours, theirs = flat(resolved(ours_written)), flat(resolved(theirs_written))
+    compared = {key for key in theirs if key.split(".")[0] in theirs_written} - IDENTITY
+    assert {"filter.resample_interval", "sensor.laser_model_type"} <= compared
+    claimed = {"filter.recovery_alpha_fast"} if hybrid == "hybrid_real" else set()
+    if hybrid == "hybrid_verified":
+        claimed = {"learned.verified", "learned.calibration_scans"}
+    differing = {key for key in compared if ours[key] != theirs[key]}
     assert differing == claimed, f"{hybrid} and {baseline} differ in {sorted(differing)}"
     if hybrid == "hybrid_real":
-        assert theirs["recovery_alpha_slow"] == theirs["recovery_alpha_fast"] == 0
-        assert ours["recovery_alpha_slow"] == 0 and ours["proposal"]["verified_gate"]
+        assert theirs["filter.recovery_alpha_slow"] == theirs["filter.recovery_alpha_fast"] == 0
+        assert ours["filter.recovery_alpha_slow"] == 0
+        assert ours["mixing.type"] == "verified_gate" and ours["proposal.type"] == "learned"
     if hybrid == "hybrid_verified":
-        assert set(ours) - set(theirs) == {"verify", "calibration_scans", "calibration_count"}
+        assert ours["learned.verified"] and not theirs["learned.verified"]
+        assert set(flat(ours_written)) - set(flat(theirs_written)) == {
+            "learned.verified",
+            "learned.calibration_scans",
+        }

@@ -128,13 +128,15 @@ DUMMY_NOTE = "a user's own amcl variant, added as one YAML file"
 DUMMY_YAML = f"""defaults:
   - amcl
   - _self_
-name: {DUMMY_LOCALIZER}
-kind: amcl
-group: tracking
-stages: [localize]
-global_table: true
-note: "{DUMMY_NOTE}"
-laser_max_beams: 12
+meta:
+  name: {DUMMY_LOCALIZER}
+  kind: particle_filter
+  group: tracking
+  stages: [localize]
+  global_table: true
+  note: "{DUMMY_NOTE}"
+sensor:
+  laser_max_beams: 12
 """
 
 

@@ -387,12 +387,14 @@ def test_a_measured_seed_spread_makes_close_margins_inconclusive(tmp_path: Path)
 
 
 def copy_catalog(tmp_path: Path, edits: dict[str, dict]) -> Path:
-    """conf/localizer copied, with `edits` ({config: {key: value}}) applied."""
+    """conf/localizer copied, with `edits` ({config: {meta key: value}}) applied to the
+    configs' `meta` sections."""
     conf = tmp_path / "localizer"
     shutil.copytree(LOCALIZER_CONF, conf)
     for name, changes in edits.items():
         cfg = yaml.safe_load((conf / f"{name}.yaml").read_text())
-        (conf / f"{name}.yaml").write_text(yaml.safe_dump(cfg | changes))
+        cfg["meta"] = cfg["meta"] | changes
+        (conf / f"{name}.yaml").write_text(yaml.safe_dump(cfg))
     return conf
 
 

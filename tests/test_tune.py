@@ -4,6 +4,7 @@ command runs a study end to end on a small run."""
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import subprocess
@@ -16,8 +17,10 @@ import numpy as np
 import pytest
 import yaml
 
-from scanloc.localize.kinds import LocalizeInputs
-from scanloc.localize.mcl.config import known_keys
+from scanloc.localize.catalog import raw_config
+from scanloc.localize.config_params import check_sections
+from scanloc.localize.kinds import KIND_SECTIONS, LocalizeInputs, config_file, kind_of
+from scanloc.localize.show import resolved
 from scanloc.stages import tune
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import Trajectory, save_trajectory
@@ -34,17 +37,28 @@ def test_dotted_keys_and_fitted_alphas() -> None:
     assert config["proposal"]["share"] == 0.1  # the original is left alone
     assert tune.with_keys(config, {"x.y": 1})["x"] == {"y": 1}  # missing parents are made
     keys = tune.resolve_option(
-        {"odom_model_type": "diff-corrected", "fitted_alpha_scale": 2.0}, [0.1, 0.2, 0.3, 0.4]
+        {"motion.odom_model_type": "diff-corrected", "fitted_alpha_scale": 2.0},
+        [0.1, 0.2, 0.3, 0.4],
     )
     assert keys == {
-        "odom_model_type": "diff-corrected",
+        "motion.odom_model_type": "diff-corrected",
+        "motion.odom_alpha1": 0.2, "motion.odom_alpha2": 0.4,
+        "motion.odom_alpha3": 0.6, "motion.odom_alpha4": 0.8,
+    }  # fmt: skip
+    # the fitted alphas land in the `motion` section, beside what the config sets there
+    amcl = {"meta": {"name": "amcl"}, "motion": {"odom_alpha5": 0.1}}
+    assert tune.with_keys(amcl, keys)["motion"] == {
+        "odom_alpha5": 0.1, "odom_model_type": "diff-corrected",
         "odom_alpha1": 0.2, "odom_alpha2": 0.4, "odom_alpha3": 0.6, "odom_alpha4": 0.8,
     }  # fmt: skip
 
 
 def test_coordinate_descent_keeps_only_what_lowers_the_score(monkeypatch) -> None:
+    seeds: set[int] = set()
+
     def toy(config: Mapping[str, Any], inputs: Any) -> dict[str, float]:
-        return {"score": abs(config["a"] - 3) + config["b"]["c"] + 0.0 * config["seed"]}
+        seeds.add(config["filter"]["seed"])  # each trial's seed, in the `filter` section
+        return {"score": abs(config["a"] - 3) + config["b"]["c"]}
 
     monkeypatch.setitem(tune.OBJECTIVES, "toy", toy)
     run = tune.TuneRun("r", None, {"a": 0, "b": {"c": 1}})  # type: ignore[arg-type]
@@ -52,7 +66,9 @@ def test_coordinate_descent_keeps_only_what_lowers_the_score(monkeypatch) -> Non
         "a": [{"a": 0}, {"a": 3}, {"a": 5}],
         "c": [{"b.c": 1}, {"b.c": 0}, {"b.c": 2}],
     }
-    chosen, trials = tune.coordinate_descent(factors, [0, 0, 0, 0], [run], [0, 1], "toy", passes=3)
+    chosen, trials = tune.coordinate_descent(
+        factors, [0, 0, 0, 0], [run], [0, 1], "toy", passes=3, canonical=dict
+    )
     assert chosen == {"a": 3, "b.c": 0}
     assert [(t["factor"], t["option"], t["kept"]) for t in trials] == [
         ("start", {}, True),
@@ -67,6 +83,7 @@ def test_coordinate_descent_keeps_only_what_lowers_the_score(monkeypatch) -> Non
         ("c", {"b.c": 2}, False),
     ]
     assert trials[3]["score"] == 0.0 and sorted(trials[0]["runs"]) == ["r/s0", "r/s1"]
+    assert seeds == {0, 1}
 
 
 def test_a_gain_below_min_gain_keeps_the_earlier_choice(monkeypatch) -> None:
@@ -76,11 +93,12 @@ def test_a_gain_below_min_gain_keeps_the_earlier_choice(monkeypatch) -> None:
     monkeypatch.setitem(tune.OBJECTIVES, "toy", toy)
     run = tune.TuneRun("r", None, {"a": 0, "c": 1})  # type: ignore[arg-type]
     factors = {"a": [{"a": 3}], "c": [{"c": 0}]}  # 14 -> 11 (a gain of 21 %), then -> 10 (9 %)
-    assert tune.coordinate_descent(factors, [0] * 4, [run], [0], "toy")[0] == {"a": 3, "c": 0}
-    chosen, trials = tune.coordinate_descent(factors, [0] * 4, [run], [0], "toy", min_gain=0.1)
+    descent = functools.partial(tune.coordinate_descent, canonical=dict)  # toy configs as they are
+    assert descent(factors, [0] * 4, [run], [0], "toy")[0] == {"a": 3, "c": 0}
+    chosen, trials = descent(factors, [0] * 4, [run], [0], "toy", min_gain=0.1)
     assert chosen == {"a": 3} and [t["kept"] for t in trials] == [True, True, False]
     with pytest.raises(ValueError, match="min_gain"):
-        tune.coordinate_descent(factors, [0] * 4, [run], [0], "toy", min_gain=1.0)
+        descent(factors, [0] * 4, [run], [0], "toy", min_gain=1.0)
 
 
 def test_a_misspelt_run_entry_is_refused_with_its_study() -> None:
@@ -136,8 +154,9 @@ def test_the_command_runs_a_study(tmp_path: Path) -> None:
 def test_every_study_names_what_the_tune_command_reads(study_file: Path) -> None:
     """A study file's typo would surface only minutes into a run (or never, for a factor key
     the filter ignores): its name, objective, run entries (the pipeline's runs) and every
-    top-level key it tries (a filter parameter or a localizer config's key) are checked up
-    front."""
+    key it tries (`section.key` of the localizer's config, or fitted_alpha_scale) are checked
+    up front: each option, set on the study's localizer as the tune command sets it, must
+    leave a config whose kind reads every section and whose parts know every key."""
     study = yaml.safe_load(study_file.read_text())
     assert study["name"] == study_file.stem
     assert study["objective"] in tune.OBJECTIVES
@@ -145,13 +164,15 @@ def test_every_study_names_what_the_tune_command_reads(study_file: Path) -> None
     for run in study["runs"]:
         tune.check_run_entry(run, study_file.name)
         assert str(run["run_dir"]).startswith("data/trajectories/")
-    localizer_keys = {
-        key
-        for path in (REPO / "conf" / "localizer").glob("*.yaml")
-        for key in yaml.safe_load(path.read_text())
-    }
-    filter_keys = set(known_keys()) | localizer_keys | {tune.FITTED_SCALE_KEY}
+    localizer = raw_config(study["localizer"], REPO / "conf" / "localizer")
+    kind = kind_of(localizer)
     for factor, options in study["factors"].items():
         for option in options:
-            unknown = {k for k in option if "." not in k} - filter_keys
-            assert not unknown, f"{study_file.name}: factor {factor} sets unknown keys {unknown}"
+            keys = tune.resolve_option(option, [0.1, 0.2, 0.3, 0.4])
+            config = tune.with_keys(localizer, keys)
+            where = f"{study_file.name}: factor {factor}: {config_file(config)}"
+            check_sections(config, KIND_SECTIONS[kind], where, f"a localizer of kind '{kind}'")
+            whole = resolved(config)  # every section parsed by its part: unknown keys fail
+            for dotted, value in keys.items():
+                section, key = dotted.split(".")
+                assert whole[section][key] == value, f"{where}: {dotted} does not reach its part"

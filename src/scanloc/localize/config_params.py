@@ -67,7 +67,9 @@ def section_values(config: Mapping[str, Any], section: str, where: str) -> dict[
     return dict(values)
 
 
-def check_sections(config: Mapping[str, Any], known: Iterable[str], where: str, reader: str) -> None:
+def check_sections(
+    config: Mapping[str, Any], known: Iterable[str], where: str, reader: str
+) -> None:
     """Every top-level key of `config` is a section `reader` reads, or an error naming it."""
     allowed = sorted(known)
     for key in config:

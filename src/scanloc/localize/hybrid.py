@@ -48,11 +48,12 @@ tests/test_hybrid_posterior.py checks the weights against a brute-force Bayes fi
 Adaptive mixing (`mixing: {type: adaptive}`): the share follows the scan likelihood as in
 augmented MCL. Short- and long-term averages of the mean sensor factor (rates `alpha_fast` /
 `alpha_slow`, mcl/averages.py) give lost = 1 - w_fast / w_slow; the share is
-φ · clip((lost - τ) / (1 - τ), 0, 1) with the threshold τ = `threshold`, so while the filter is localized (lost ≤ τ) no
-proposal particle is drawn, the update is amcl's, and the network does not run.
+φ · clip((lost - τ) / (1 - τ), 0, 1) with the threshold τ = `threshold`, so while the filter
+is localized (lost ≤ τ) no proposal particle is drawn, the update is amcl's, and the network
+does not run.
 
-The verified gate (`mixing: {type: verified_gate}`): the share is φ only when the map says the filter is
-elsewhere, else 0. At each update the filter's estimate (the predicted particles' weighted
+The verified gate (`mixing: {type: verified_gate}`): the share is φ only when the map says the
+filter is elsewhere, else 0. At each update the filter's estimate (the predicted particles' weighted
 mean) and the network's hypotheses are refined against the map and scored by the share of the
 scan they explain (the verifier of hypothesis_verification.py); the gate opens when a
 hypothesis away from the estimate explains at least `margin` more of the scan, on
@@ -263,9 +264,7 @@ class LearnedProposal:
             weights = np.asarray(hyp.weights[0], dtype=np.float64)
         self.means = np.ascontiguousarray(hyp.poses[0][keep])
         floor = np.array([p.min_std_xy, p.min_std_xy, p.min_std_theta])
-        self.stds = np.ascontiguousarray(
-            np.maximum(p.std_inflation * hyp.stds[0][keep], floor)
-        )
+        self.stds = np.ascontiguousarray(np.maximum(p.std_inflation * hyp.stds[0][keep], floor))
         self.weights = weights[keep] / weights[keep].sum()
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -456,7 +455,9 @@ class ImportanceWeights:
 def learned_proposal(params: LearnedProposalParams, context: PartsContext) -> LearnedProposal:
     """The learned localizer's hypotheses of each scan (the `learned` section's model)."""
     if context.hypotheses is None:
-        raise ValueError(f"{context.where}: section 'proposal': type 'learned' needs a `learned` section")
+        raise ValueError(
+            f"{context.where}: section 'proposal': type 'learned' needs a `learned` section"
+        )
     return LearnedProposal(context.hypotheses(), context.uniform, params)
 
 

@@ -26,14 +26,15 @@ waits lower in its list. The map can tell them apart. For every hypothesis:
 The verifier works in the frame the hypotheses are in (the laser's pose, as the learned
 localizers' outputs). Readings at or beyond range_max (no return) and below range_min do not
 take part. The same object serves the learned localizer, the hypothesis tracker and the hybrid
-(scanloc.localize.kinds: a localizer config's `verify:` section).
+(scanloc.localize.kinds: a localizer config's `verifier` section, used where its `learned`
+section says `verified`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np

@@ -23,10 +23,10 @@ import numpy as np
 
 from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.estimates import Localization, table_covariances, table_poses
-from scanloc.localize.cnn_localizer import localize_cnn
-from scanloc.localize.fusion import FusionParams, fuse_odometry
 from scanloc.localize import hybrid  # noqa: F401  (registers the hybrid's parts)
+from scanloc.localize.cnn_localizer import localize_cnn
 from scanloc.localize.config_params import check_sections, parse_section, section_values
+from scanloc.localize.fusion import FusionParams, fuse_odometry
 from scanloc.localize.hypothesis_tracker import TrackerParams, track_hypotheses
 from scanloc.localize.hypothesis_verification import HypothesisVerifier, VerifierParams
 from scanloc.localize.learned_localizer import (
@@ -196,8 +196,11 @@ def learned_hypotheses(
         if not getattr(learned, key):
             raise ValueError(
                 f"{where}: section 'learned': key '{key}': expected a value"
-                + (" (verified hypotheses need the scans their score is calibrated on)"
-                   if key == "calibration_scans" else "")
+                + (
+                    " (verified hypotheses need the scans their score is calibrated on)"
+                    if key == "calibration_scans"
+                    else ""
+                )
             )
     _, hypotheses_of, _ = scan_hypotheses(Path(learned.model), inputs.ranges, learned)
     if not learned.verified:

@@ -5,10 +5,10 @@ A stage runs the localizers whose conf/localizer/<name>.yaml lists it under `sta
 (scanloc.localize.catalog), each composed by Hydra as a `localizer@localizers.<key>` entry of
 the stage's config (<key>: the name, `_global_` written `-global-`: catalog.package_key), with
 the stage's own overrides (map_name, sensor, ...), so that adding a localizer is adding one
-yaml file. `++localizers.<key>.<section>.<key>=...` overrides a listed localizer's key; `only=<name>`
-runs just one; `localizer=<config>` runs that config alone. `odometry=wheel|laser` picks the
-run's odometry stream for every localizer; the laser's mounting on the robot comes from the
-run's meta.json `laser_mount` (zero when absent).
+yaml file. `++localizers.<key>.<section>.<field>=...` overrides a listed localizer's field;
+`only=<name>` runs just one; `localizer=<config>` runs that config alone. `odometry=wheel|laser`
+picks the run's odometry stream for every localizer; the laser's mounting on the robot comes
+from the run's meta.json `laser_mount` (zero when absent).
 """
 
 from __future__ import annotations

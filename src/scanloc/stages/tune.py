@@ -45,6 +45,7 @@ from scanloc.evaluate.metrics import (
 from scanloc.io import write_json
 from scanloc.localize.kinds import LocalizeInputs, run_localizer
 from scanloc.localize.mcl.motion_fit import fit_odometry_alphas
+from scanloc.localize.show import resolved
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.stages._app import conf_dir, stage_main, to_dict
 from scanloc.stages.localize import ODOMETRY_SOURCES, laser_mount, select_odometry
@@ -172,12 +173,14 @@ def coordinate_descent(
     objective: str,
     passes: int = 1,
     min_gain: float = 0.0,
+    canonical: Callable[[dict[str, Any]], dict[str, Any]] = resolved,
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The chosen keys and every trial, in order (module doc): up to `passes` sweeps over the
     factors, stopping after a sweep that keeps nothing (a later factor's choice can change
     which option of an earlier one is best). An option is kept when it lowers the best score
     so far by more than the fraction `min_gain` of it (0: by anything), so that a margin
-    inside the seeds' noise does not decide a factor."""
+    inside the seeds' noise does not decide a factor. Two trials are the same when their
+    configs are, every default filled in (`canonical`)."""
     if not 0.0 <= min_gain < 1.0:
         raise ValueError(
             f"field 'min_gain' (conf/tune.yaml or the study's): expected a fraction in [0, 1), "
@@ -187,8 +190,13 @@ def coordinate_descent(
     chosen: dict[str, Any] = {}
     scored: dict[str, dict[str, Any]] = {}  # by the whole config: none is run twice
 
+    def whole(keys: dict[str, Any]) -> dict[str, Any]:
+        """The config with `keys` set, every default filled in: an option that writes a
+        default is the setting it already had."""
+        return canonical(with_keys(base, keys))
+
     def score(keys: dict[str, Any]) -> dict[str, Any]:
-        config = json.dumps(with_keys(base, keys), sort_keys=True)
+        config = json.dumps(whole(keys), sort_keys=True)
         if config not in scored:
             scored[config] = score_trial(keys, runs, seeds, objective)
         return scored[config]
@@ -200,7 +208,7 @@ def coordinate_descent(
         for factor, options in factors.items():
             for option in options:
                 keys = resolve_option(option, fitted)
-                if with_keys(base, chosen | keys) == with_keys(base, chosen):
+                if whole(chosen | keys) == whole(chosen):
                     continue  # the current setting: already scored
                 result = score(chosen | keys)
                 kept = result["score"] < best["score"] * (1.0 - min_gain)

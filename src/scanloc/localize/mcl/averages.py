@@ -12,7 +12,9 @@ class LikelihoodAverages:
 
     def __init__(self, alpha_slow: float, alpha_fast: float) -> None:
         if not (0 <= alpha_slow <= 1 and 0 <= alpha_fast <= 1):
-            raise ValueError(f"alpha_slow / alpha_fast must lie in [0, 1], got {alpha_slow}, {alpha_fast}")
+            raise ValueError(
+                f"alpha_slow / alpha_fast must lie in [0, 1], got {alpha_slow}, {alpha_fast}"
+            )
         self.alpha_slow, self.alpha_fast = alpha_slow, alpha_fast
         self.slow = self.fast = 0.0
 

@@ -1,17 +1,18 @@
 """The particle filter: Monte Carlo localization as ROS 1 amcl runs it (amcl_node.cpp's
 laserReceived, pf/*.c), assembled from parts, each behind a small Protocol:
 motion model (motion.py), sensor model (sensor_models.py), proposal and its weighting
-(proposals.py), resampler (resampler.py), estimator (estimator.py) and update trigger
-(trigger.py). `config.py` builds them from a ROS-named localizer config.
+(proposals.py), mixing (mixing.py), resampler (resampler.py), estimator (estimator.py) and
+update trigger (trigger.py). `config.py` builds them from a localizer config's sections.
 
 The filter, step by step:
 1. The first scan after an initialisation only records the odometry pose and weights the
    particles (no motion update), and publishes the estimate that the initialisation computed
    (amcl's pf_init / pf_init_model: uniform weights, before this sensor update).
 2. Later scans update the filter once the trigger says the odometry moved enough. An update
-   applies the motion model from the odometry pose of the previous update, lets the weighting
-   mix in proposed particles, then the sensor model: weights are multiplied by the model's
-   factors, normalised, and the recovery averages w_slow / w_fast follow the mean weight
+   applies the motion model from the odometry pose of the previous update, draws the mixing's
+   share of particles from the proposal (weighted by the weighting), then the sensor model:
+   weights are multiplied by the model's factors, normalised, and the recovery averages
+   w_slow / w_fast follow the mean weight
    (alphas `recovery_alpha_slow` / `_fast`; amcl_node.cpp's defaults 0.001 / 0.1 are what
    ROS 1 runs, as its dynamic-reconfigure callback ignores the .cfg defaults of 0.0).
 3. When the trigger says so, the filter resamples (with probability max(0, 1 - w_fast/w_slow)
@@ -42,9 +43,9 @@ from scanloc.localize.mcl.proposals import PriorWeights, Proposal, Weighting
 from scanloc.localize.mcl.resampler import RESAMPLERS, Resampler, SelectiveResampling
 from scanloc.localize.mcl.sensor_models import SensorModel
 from scanloc.localize.mcl.trigger import UPDATE_TRIGGERS, Schedule, UpdateTrigger
+from scanloc.pose import compose, inverse, wrap_angle
 
 MODES = ("tracking", "global")
-from scanloc.pose import compose, inverse, wrap_angle
 
 
 @dataclass(frozen=True)

@@ -77,7 +77,8 @@ class PartRegistry:
                 f"{where}: section '{self.section}': key 'type': expected one of "
                 f"{sorted(self.types)}, got {name!r}"
             )
-        return name, parse_section(self.types[name].params, {self.section: values}, self.section, where)
+        params = parse_section(self.types[name].params, {self.section: values}, self.section, where)
+        return name, params
 
     def build(self, context: PartsContext) -> Any:
         """The part the config's section describes."""
