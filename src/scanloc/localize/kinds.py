@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -24,6 +25,13 @@ import numpy as np
 from scanloc.data.scan_dataset import load_scan_dataset
 from scanloc.estimates import Localization, table_covariances, table_poses
 from scanloc.localize import hybrid  # noqa: F401  (registers the hybrid's parts)
+from scanloc.localize.branch_and_bound import (
+    GlobalSearch,
+    SearchParams,
+    TopKParams,
+    end_points,
+    heading_step,
+)
 from scanloc.localize.cnn_localizer import localize_cnn
 from scanloc.localize.config_params import check_sections, parse_section, section_values
 from scanloc.localize.fusion import FusionParams, fuse_odometry
@@ -41,6 +49,7 @@ from scanloc.localize.mcl.config import FILTER_SECTIONS, filter_from_sections
 from scanloc.localize.mcl.filter import run_filter
 from scanloc.localize.mcl.parts import PartsContext
 from scanloc.localize.mcl.proposals import UniformProposal
+from scanloc.scanlocnet.model import Hypotheses
 from scanloc.sensor.laser import LaserSpec
 from scanloc.trajectory.format import Trajectory
 from scanloc.world.map_server import load_map
@@ -254,6 +263,48 @@ def run_learned_tracking_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) ->
     return Localization(
         table, learned.setup_s, learned.scan_seconds + per_step, hypotheses=learned.hypotheses
     )
+
+
+@register_kind("bnb", ("search", "top_k", "learned"))
+def run_bnb_kind(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:
+    """Branch and bound over the whole map (branch_and_bound.py), each scan alone: its `top_k`
+    best poses more than `separation_m` or `separation_deg` apart, weighted by their match
+    score. With a `learned` section (a model and its decoding), the learned localizer's
+    hypotheses guide the search (scanlocnet_bnb): the same poses, fewer blocks scored. Each
+    pose's standard deviations are those of a uniform error over its cell and heading step."""
+    start = time.perf_counter()
+    where = config_file(cfg)
+    params = parse_section(SearchParams, cfg, "search", where)
+    top = parse_section(TopKParams, cfg, "top_k", where)
+    search = GlobalSearch(inputs.grid, params)
+    laser, angles = inputs.laser, inputs.laser.beam_angles()
+    guide_of = None
+    if "learned" in cfg:
+        learned = parse_section(LearnedParams, cfg, "learned", where)
+        _, guide_of, _ = scan_hypotheses(Path(learned.model), inputs.ranges, learned)
+    resolution = search.grids.resolution
+    nodes: list[int] = []
+
+    def hypotheses_of(scan: np.ndarray) -> Hypotheses:
+        valid = (scan >= laser.range_min) & (scan < laser.range_max)
+        points = end_points(np.asarray(scan, dtype=np.float64), angles, valid, params)
+        guide = guide_of(scan).poses[0] if guide_of is not None else None
+        found = search.search_top_k(
+            points, top.k, top.separation_m, math.radians(top.separation_deg), guide
+        )
+        nodes.append(found[-1].nodes if found else 0)
+        spread = np.array([resolution, resolution, heading_step(points, resolution)])
+        stds = np.tile(spread / math.sqrt(12.0), (1, len(found), 1))
+        poses = np.array([m.pose for m in found]).reshape(1, -1, 3)
+        return Hypotheses(poses=poses, weights=np.array([[m.score for m in found]]), stds=stds)
+
+    run = localize_learned(
+        in_base_frame(hypotheses_of, inputs.laser_mount),
+        time.perf_counter() - start,
+        inputs.ranges,
+        inputs.trajectory.times,
+    )
+    return run._replace(counts={"nodes_expanded": round(float(np.mean(nodes))) if nodes else 0})
 
 
 def run_localizer(cfg: Mapping[str, Any], inputs: LocalizeInputs) -> Localization:

@@ -11,6 +11,7 @@ from typing import Any
 
 import yaml
 
+from scanloc.localize.branch_and_bound import SearchParams, TopKParams
 from scanloc.localize.catalog import raw_config
 from scanloc.localize.config_params import parse_section
 from scanloc.localize.fusion import FusionParams
@@ -22,6 +23,8 @@ from scanloc.localize.mcl.config import MclConfig, sensor_model_params
 from scanloc.localize.mcl.parts import MIXINGS, PROPOSALS, WEIGHTINGS
 
 _PLAIN = {
+    "search": SearchParams,
+    "top_k": TopKParams,
     "learned": LearnedParams,
     "verifier": VerifierParams,
     "tracker": TrackerParams,
