@@ -52,6 +52,9 @@ def test_a_seed_is_set_in_the_filter_section() -> None:
     assert seeded["meta"] == cfg["meta"] and "seed" not in cfg["filter"]
     assert MclConfig.from_sections(seeded, "amcl.yaml").filter.seed == 4
     assert with_seed({"meta": cfg["meta"]}, 2)["filter"] == {"seed": 2}
+    # a deterministic kind has no `filter` section to put a seed in: its config stays as it is
+    learned = {"meta": {"name": "scanlocnet", "kind": "learned"}, "learned": {"model": "m.pt"}}
+    assert with_seed(learned, 4) == learned
 
 
 @pytest.fixture(scope="module")

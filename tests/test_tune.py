@@ -28,6 +28,7 @@ from scanloc.world.map_server import save_map
 from small_world import SPEC, small_map, ug01_scans
 
 REPO = Path(__file__).resolve().parents[1]
+PF = {"kind": "particle_filter"}  # a seeded kind: each trial runs once per seed
 
 
 def test_dotted_keys_and_fitted_alphas() -> None:
@@ -61,7 +62,7 @@ def test_coordinate_descent_keeps_only_what_lowers_the_score(monkeypatch) -> Non
         return {"score": abs(config["a"] - 3) + config["b"]["c"]}
 
     monkeypatch.setitem(tune.OBJECTIVES, "toy", toy)
-    run = tune.TuneRun("r", None, {"a": 0, "b": {"c": 1}})  # type: ignore[arg-type]
+    run = tune.TuneRun("r", None, {"meta": PF, "a": 0, "b": {"c": 1}})  # type: ignore[arg-type]
     factors = {
         "a": [{"a": 0}, {"a": 3}, {"a": 5}],
         "c": [{"b.c": 1}, {"b.c": 0}, {"b.c": 2}],
@@ -91,7 +92,7 @@ def test_a_gain_below_min_gain_keeps_the_earlier_choice(monkeypatch) -> None:
         return {"score": abs(config["a"] - 3) + config["c"] + 10.0}
 
     monkeypatch.setitem(tune.OBJECTIVES, "toy", toy)
-    run = tune.TuneRun("r", None, {"a": 0, "c": 1})  # type: ignore[arg-type]
+    run = tune.TuneRun("r", None, {"meta": PF, "a": 0, "c": 1})  # type: ignore[arg-type]
     factors = {"a": [{"a": 3}], "c": [{"c": 0}]}  # 14 -> 11 (a gain of 21 %), then -> 10 (9 %)
     descent = functools.partial(tune.coordinate_descent, canonical=dict)  # toy configs as they are
     assert descent(factors, [0] * 4, [run], [0], "toy")[0] == {"a": 3, "c": 0}

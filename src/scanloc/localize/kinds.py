@@ -103,7 +103,10 @@ def is_seeded(cfg: Mapping[str, Any]) -> bool:
 
 
 def with_seed(cfg: Mapping[str, Any], seed: int) -> dict[str, Any]:
-    """A copy of a seeded localizer's config with the `filter` section's `seed` set."""
+    """A copy of a seeded localizer's config with the `filter` section's `seed` set; a
+    deterministic one's as it is (it has no seed to set)."""
+    if not is_seeded(cfg):
+        return dict(cfg)
     return {**cfg, "filter": {**(cfg.get("filter") or {}), "seed": int(seed)}}
 
 

@@ -43,7 +43,7 @@ from scanloc.evaluate.metrics import (
     localization_metrics,
 )
 from scanloc.io import write_json
-from scanloc.localize.kinds import LocalizeInputs, run_localizer
+from scanloc.localize.kinds import LocalizeInputs, run_localizer, with_seed
 from scanloc.localize.mcl.motion_fit import fit_odometry_alphas
 from scanloc.localize.show import resolved
 from scanloc.sensor.simulate import laser_spec_from_config
@@ -154,7 +154,7 @@ def score_trial(
     """The objective's figures on every run and seed with `keys` set, and their means."""
     per_run = {
         f"{run.name}/s{seed}": OBJECTIVES[objective](
-            with_keys(run.localizer, {**keys, "filter.seed": int(seed)}), run.inputs
+            with_seed(with_keys(run.localizer, keys), int(seed)), run.inputs
         )
         for run in runs
         for seed in seeds
