@@ -4,6 +4,8 @@ the one chain on every site; a site it does not list is refused under DVC."""
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -85,3 +87,21 @@ def test_a_site_sites_yaml_does_not_list_is_refused_under_dvc_only(
     check_listed("sparse_obstacles", tmp_path)
     with pytest.raises(ValueError, match=r"expected the site 'office'.*python -m scanloc\.sites"):
         check_listed("office", tmp_path)
+
+
+@pytest.mark.parametrize("stage", ["evaluate", "report"])
+def test_evaluate_and_report_without_sites_say_where_they_come_from(
+    stage: str, tmp_path: Path
+) -> None:
+    """`sites` defaults to null (not `???`, which `dvc exp run -S conf/<stage>.yaml:...` refuses
+    to compose): a run by hand without them is a clear error, not an empty table."""
+    done = subprocess.run(
+        [sys.executable, "-m", f"scanloc.stages.{stage}", f"hydra.run.dir={tmp_path}"],
+        cwd=Path(__file__).resolve().parents[1],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode != 0
+    assert f"conf/{stage}.yaml: field 'sites': expected {{name: kind}}" in done.stderr
+    assert "Traceback" not in done.stderr

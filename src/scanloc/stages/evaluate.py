@@ -36,7 +36,12 @@ def maps_look_alikes(cfg: DictConfig, sets: Mapping[str, Sequence[str]]) -> dict
 @stage_main("evaluate")
 def main(cfg: DictConfig) -> None:
     with timed_stage("evaluate", cfg.timing_dir):
-        sites: dict[str, str] = dict(cfg.sites)
+        sites: dict[str, str] = dict(cfg.sites or {})
+        if not sites:  # dvc.yaml passes them; by hand: sites={name: kind, ...}
+            raise ValueError(
+                "conf/evaluate.yaml: field 'sites': expected {name: kind} of at least one site "
+                "(dvc.yaml passes sites.yaml's `site_list`)"
+            )
         runs = {site: cfg.runs[kind] for site, kind in sites.items()}
         names = [f"{site}_{run}" for site, kind in runs.items() for run in kind.localized]
         metrics = evaluate_runs(

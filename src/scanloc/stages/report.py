@@ -45,7 +45,12 @@ def run_params(profile: str, sites: dict[str, str]) -> dict[str, Any]:
 def main(cfg: DictConfig) -> None:
     with timed_stage("report", cfg.timing_dir):
         profile = str(cfg.profile.name)
-        sites: dict[str, str] = dict(cfg.sites)
+        sites: dict[str, str] = dict(cfg.sites or {})
+        if not sites:  # dvc.yaml passes them; by hand: sites={name: kind, ...}
+            raise ValueError(
+                "conf/report.yaml: field 'sites': expected {name: kind} of at least one site "
+                "(dvc.yaml passes sites.yaml's `site_list`)"
+            )
         context = {
             "profile": profile,
             "params": run_params(profile, sites),
