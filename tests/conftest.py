@@ -38,6 +38,24 @@ def pytest_configure(config: pytest.Config) -> None:
         torch.set_num_threads(1)
 
 
+# The critical path of `make test-all`: the smoke `dvc repro` of this file takes most of CI's
+# time on one worker. pytest-xdist (--dist loadfile) hands out whole files in collection order,
+# so the longest go first (longest-processing-time-first): this file, the other end-to-end
+# ones, the slow ones, then the fast suite fills the other worker beside them.
+CRITICAL_PATH = "test_pipeline_e2e.py"
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    def rank(item: pytest.Item) -> int:
+        if item.path.name == CRITICAL_PATH:
+            return 0
+        if item.get_closest_marker("e2e"):
+            return 1
+        return 2 if item.get_closest_marker("slow") else 3
+
+    items.sort(key=rank)  # stable: each file's tests keep their order
+
+
 @pytest.fixture(scope="session")
 def stdr_maps_dir() -> Path:
     """The STDR originals (GPL-3, never copied into the repo); skip when ../shared is absent."""

@@ -143,6 +143,9 @@ def test_a_new_proposal_type_is_one_registration() -> None:
         def density(self, poses: np.ndarray) -> np.ndarray:
             return np.ones(len(poses))
 
+        def counts(self) -> dict[str, int]:
+            return {}
+
     PROPOSALS.register("corner_for_test", NoParams)(lambda params, context: Corner())
     try:
         cfg = {

@@ -4,10 +4,19 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import stats
 
-from scanloc.evaluate.seeds import global_localization, mean_interval, over_seeds, wilson_interval
+from scanloc.evaluate.seeds import (
+    clustered_wilson_interval,
+    global_localization,
+    mean_interval,
+    over_seeds,
+    wilson_interval,
+)
 
 
 def test_wilson_interval_matches_a_hand_computation_and_scipy() -> None:
@@ -25,6 +34,61 @@ def test_wilson_interval_matches_a_hand_computation_and_scipy() -> None:
     assert wilson_interval(0, 5)[0] == 0.0 and wilson_interval(5, 5)[1] == 1.0
     with pytest.raises(ValueError, match="successes"):
         wilson_interval(6, 5)
+
+
+def test_clustered_wilson_spans_independent_events_to_one_trial_per_run() -> None:
+    """Runs that each recover half their kidnaps (no spread between runs) are independent
+    events: the pooled Wilson interval. Runs that recover all or none (all the spread between
+    runs) are one trial each: Wilson over the runs. All recovered: the run count (the
+    spread cannot be estimated, the cautious end)."""
+    low, high, n_eff = clustered_wilson_interval([2, 2, 2, 2, 2], [4, 4, 4, 4, 4])
+    assert n_eff == 20 and (low, high) == pytest.approx(wilson_interval(10, 20), abs=1e-12)
+    low, high, n_eff = clustered_wilson_interval([3, 3, 0, 0], [3, 3, 3, 3])
+    assert n_eff == 4 and (low, high) == pytest.approx(wilson_interval(2, 4), abs=1e-12)
+    low, high, n_eff = clustered_wilson_interval([3] * 5, [3] * 5)
+    assert n_eff == 5 and (low, high) == wilson_interval(5, 5)
+    with pytest.raises(ValueError, match="successes"):
+        clustered_wilson_interval([4], [3])
+
+
+def _ratio_variance(y: np.ndarray, n: np.ndarray) -> float:
+    """The textbook ratio estimator's variance of a pooled rate over clusters (Cochran 6.9:
+    (1 - f) / (m n̄²) · Σ (y_i - p n_i)² / (m - 1), no finite-population correction)."""
+    m, p = len(y), y.sum() / n.sum()
+    return float(np.sum((y - p * n) ** 2) / (m - 1) / (m * n.mean() ** 2))
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.integers(1, 6), st.integers(0, 6)).map(lambda t: (min(t[1], t[0]), t[0])),
+        min_size=2,
+        max_size=8,
+    )
+)
+def test_clustered_wilson_uses_the_ratio_estimators_design_effect(runs) -> None:
+    y = np.array([s for s, _ in runs], np.float64)
+    n = np.array([t for _, t in runs], np.float64)
+    p = y.sum() / n.sum()
+    low, high, n_eff = clustered_wilson_interval(y.astype(int).tolist(), n.astype(int).tolist())
+    assert len(runs) <= n_eff <= n.sum()
+    assert 0.0 <= low <= p <= high <= 1.0
+    if 0 < p < 1:
+        variance = _ratio_variance(y, n)
+        if variance > 0:
+            expected = min(max(p * (1 - p) / variance, len(runs)), n.sum())
+            assert n_eff == pytest.approx(expected, rel=1e-9)
+    assert (low, high) == pytest.approx(
+        stats_wilson(p, n_eff), abs=1e-12
+    )  # Wilson at the effective sample size
+
+
+def stats_wilson(p: float, n: float) -> tuple[float, float]:
+    """Wilson's score interval written from its quadratic (not the library's closed form)."""
+    z2 = 1.959963984540054**2
+    a, b, c = 1 + z2 / n, -(2 * p + z2 / n), p * p
+    disc = math.sqrt(max(b * b - 4 * a * c, 0.0))
+    return max(0.0, (-b - disc) / (2 * a)), min(1.0, (-b + disc) / (2 * a))
 
 
 def test_mean_interval_is_student_t() -> None:
@@ -58,7 +122,15 @@ def test_over_seeds_pools_kidnaps_and_keeps_per_seed_values() -> None:
     )
     assert fig["kidnaps_recovered_frac"] == pytest.approx(5 / 9)
     assert fig["converged"] == pytest.approx(2 / 3) and fig["recovered_total"] == 6
-    assert fig["kidnaps_recovered_frac_ci95_low"] == wilson_interval(5, 9)[0]
+    # 3, 2 and 0 of 3 per run: the interval counts the 3 runs, not the 9 kidnaps
+    assert fig["n_runs_kidnapped"] == 3
+    low, high, n_eff = clustered_wilson_interval([3, 2, 0], [3, 3, 3])
+    assert (fig["kidnaps_recovered_frac_ci95_low"], fig["kidnaps_recovered_frac_ci95_high"]) == (
+        low,
+        high,
+    )
+    assert fig["kidnaps_recovered_frac_effective_n"] == n_eff and 3 <= n_eff < 9
+    assert low < wilson_interval(5, 9)[0] and high > wilson_interval(5, 9)[1]
     assert (fig["steps_to_converge_median"], fig["steps_to_converge_max"]) == (25, 40)
     assert fig["steps_to_converge"] == pytest.approx(68 / 3)
     assert (fig["recovery_steps_median"], fig["recovery_steps_max"]) == (9, 40)

@@ -15,12 +15,10 @@ import numpy as np
 import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
 
 from scanloc.estimates import Localization, estimate_table
 from scanloc.localize.catalog import localizer_overrides, stage_localizers
 from scanloc.localize.kinds import KIND_SECTIONS, LOCALIZER_KINDS, LocalizeInputs, register_kind
-from scanloc.localize.show import resolved
 from scanloc.stages.localize import run_stage
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import save_trajectory
@@ -192,56 +190,3 @@ def test_a_name_with_hydras_global_keyword_is_composed_whole() -> None:
     names = sorted(str(c.meta.name) for c in cfg.localizers.values())
     assert names == stage_localizers("localize", CONF / "localizer")
     assert "amcl_global_matched" in names
-
-
-def composed_localizer(name: str) -> dict[str, Any]:
-    """conf/localizer/<name>.yaml composed as the localize stage composes it (map 1)."""
-    with initialize_config_dir(config_dir=str(CONF.resolve()), version_base=None):
-        cfg = compose(
-            config_name="localize",
-            overrides=["map_name=sparse_obstacles", f"localizer={name}"],
-        )
-    return OmegaConf.to_container(cfg.localizer, resolve=True)  # type: ignore[return-value]
-
-
-def flat(sections: Mapping[str, Any]) -> dict[str, Any]:
-    """`section.key` -> value of every section but `meta`."""
-    return {
-        f"{section}.{key}": value
-        for section, values in sections.items()
-        if section != "meta"
-        for key, value in values.items()
-    }
-
-
-# What a localizer says about itself (its `meta` section, left out by `flat`), and how it starts.
-IDENTITY = {"filter.mode"}
-
-
-@pytest.mark.parametrize(
-    ("hybrid", "baseline"), [("hybrid_real", "amcl_real"), ("hybrid_verified", "hybrid")]
-)
-def test_matched_pairs_differ_only_in_what_they_claim(hybrid: str, baseline: str) -> None:
-    """hybrid_real is amcl_real's filter (recovery off) plus the learned proposal, let in by
-    its gate and by amcl's w_fast recovery (alpha_slow 0: the first update's mean weight is the
-    long-term one); hybrid_verified is the hybrid plus verification: every other key of the
-    sections the baseline writes is equal, compared with the parts' defaults filled in."""
-    ours_written, theirs_written = composed_localizer(hybrid), composed_localizer(baseline)
-    ours, theirs = flat(resolved(ours_written)), flat(resolved(theirs_written))
-    compared = {key for key in theirs if key.split(".")[0] in theirs_written} - IDENTITY
-    assert {"filter.resample_interval", "sensor.laser_model_type"} <= compared
-    claimed = {"filter.recovery_alpha_fast"} if hybrid == "hybrid_real" else set()
-    if hybrid == "hybrid_verified":
-        claimed = {"learned.verified", "learned.calibration_scans"}
-    differing = {key for key in compared if ours[key] != theirs[key]}
-    assert differing == claimed, f"{hybrid} and {baseline} differ in {sorted(differing)}"
-    if hybrid == "hybrid_real":
-        assert theirs["filter.recovery_alpha_slow"] == theirs["filter.recovery_alpha_fast"] == 0
-        assert ours["filter.recovery_alpha_slow"] == 0
-        assert ours["mixing.type"] == "verified_gate" and ours["proposal.type"] == "learned"
-    if hybrid == "hybrid_verified":
-        assert ours["learned.verified"] and not theirs["learned.verified"]
-        assert set(flat(ours_written)) - set(flat(theirs_written)) == {
-            "learned.verified",
-            "learned.calibration_scans",
-        }

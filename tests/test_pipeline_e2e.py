@@ -264,16 +264,6 @@ def test_smoke_repro_runs_the_real_log(smoke_repo: Path) -> None:
     assert "sim-to-real" in log_section and "intel_real" in log_section
 
 
-def test_scans_are_byte_reproducible_from_scratch(smoke_repo: Path, tmp_path: Path) -> None:
-    """The paper's maps and datasets, made again from scratch in a copy WITHOUT the extra maps,
-    have the same bytes: adding a map leaves the paper's entries of dvc.lock as they were."""
-    again = copy_project(tmp_path / "repo", "smoke")
-    dvc(again, "repro", "scans")
-    prefixes = ("maps@", "scans@")
-    first, second = lock_outs(smoke_repo, prefixes), lock_outs(again, prefixes)
-    assert first and first == second
-
-
 def test_two_experiments_compare_in_one_narrow_table(smoke_repo: Path) -> None:
     """Two DVC experiments on the smoke pipeline (last in this module: they change the
     workspace), compared by the README's command: one table of at most 120 columns, and the

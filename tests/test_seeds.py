@@ -87,4 +87,7 @@ def test_the_pipeline_runs_the_evaluation_set_and_scores_only_it() -> None:
         scored = kind["scored_over_seeds"] + kind["localized"] + kind["over_filter_seeds"]
         assert set(scored) <= set(kind["made"]), kind
         assert not any(r.startswith("tune") for r in scored)
+        # every made run is on one side of the split, never both (its meta.json says which)
+        assert set(kind["made"]) == set(kind["localized"]) | set(kind["tune"]), kind
+        assert not set(kind["localized"]) & set(kind["tune"]), kind
     assert len(runs["map"]["scored_over_seeds"]) >= 5

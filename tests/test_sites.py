@@ -10,7 +10,15 @@ from pathlib import Path
 
 import pytest
 
-from scanloc.sites import SITES, check_listed, expected_text, pipeline_vars, site_kinds
+from scanloc.sites import (
+    SITES,
+    check_listed,
+    expected_text,
+    load_runs,
+    pipeline_vars,
+    run_part,
+    site_kinds,
+)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 RUNS = {
@@ -105,3 +113,16 @@ def test_evaluate_and_report_without_sites_say_where_they_come_from(
     assert done.returncode != 0
     assert f"conf/{stage}.yaml: field 'sites': expected {{name: kind}}" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_every_made_run_has_its_part_of_the_split() -> None:
+    """A run's meta.json says `tune` or `evaluation` (the tune command reads it); a run on
+    neither list is an error naming conf/seeds.yaml, not a silent default."""
+    runs = load_runs(REPO_ROOT)
+    for kind, spec in runs.items():
+        parts = {run: run_part(runs, kind, run) for run in spec["made"]}
+        assert {r for r, p in parts.items() if p == "tune"} == set(spec["tune"]), kind
+    assert run_part(runs, "map", "tune_kidnap") == "tune"
+    assert run_part(runs, "log", "kidnap") == "evaluation"
+    with pytest.raises(ValueError, match=r"conf/seeds.yaml: field 'runs.map': run 'mine'"):
+        run_part(runs, "map", "mine")

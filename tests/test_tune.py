@@ -112,6 +112,42 @@ def test_a_misspelt_run_entry_is_refused_with_its_study() -> None:
     tune.check_run_entry({"run_dir": "r", "map_name": "m", "odometry": "laser"}, "study.yaml")
 
 
+@pytest.mark.parametrize(
+    ("meta", "said"),
+    [({"part": "evaluation"}, "says part 'evaluation'"), ({}, "has no field 'part'")],
+)
+def test_a_study_naming_a_scored_run_is_refused(tmp_path: Path, meta: dict, said: str) -> None:
+    """The split enforced: the tune command stops before any trial when a study names a run
+    that is scored (or one whose part nobody wrote down), naming the study and the run."""
+    run = tmp_path / "sparse_obstacles_kidnap"
+    run.mkdir()
+    (run / "meta.json").write_text(json.dumps(meta))
+    spec = {"run_dir": str(run), "map_name": "sparse_obstacles"}
+    with pytest.raises(
+        ValueError, match=rf"study\.yaml: field 'runs': run {run} is not a tune run.*{said}"
+    ):
+        tune.check_tune_part(spec, "study.yaml")
+    (run / "meta.json").write_text(json.dumps({"part": "tune"}))
+    tune.check_tune_part(spec, "study.yaml")
+
+
+def test_the_command_refuses_a_scored_run(tmp_path: Path) -> None:
+    """The same refusal from the command line: a clear error naming the study, no traceback,
+    no output written."""
+    run = tmp_path / "sparse_obstacles_kidnap"
+    run.mkdir()
+    (run / "meta.json").write_text(json.dumps({"part": "evaluation"}))
+    out = tmp_path / "out.json"
+    cmd = [sys.executable, "-m", "scanloc.stages.tune", "study=hybrid",
+           f"study.runs=[{{run_dir: {run}, map_name: sparse_obstacles}}]",
+           f"out_path={out}", f"hydra.run.dir={tmp_path / 'h'}"]  # fmt: skip
+    env = os.environ | {"PYTHONPATH": str(REPO / "src")}
+    done = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True)
+    assert done.returncode != 0 and not out.exists()
+    assert "conf/study/hybrid.yaml: field 'runs'" in done.stderr
+    assert "is not a tune run" in done.stderr and "Traceback" not in done.stderr
+
+
 def test_tracking_cuts_a_run_at_its_kidnaps() -> None:
     traj = Trajectory(
         times=np.arange(6.0), truth=np.zeros((6, 3)), odometry=np.zeros((6, 3)), kidnap_steps=(2, 5)
@@ -128,7 +164,8 @@ def test_the_command_runs_a_study(tmp_path: Path) -> None:
     grid = small_map()
     save_map(grid, tmp_path / "map" / "map.yaml")
     traj = drive_trajectory(grid, 30, seed=1, clearance=0.25)
-    save_trajectory(traj, tmp_path / "run", ug01_scans(grid, traj.truth, seed=2), meta={})
+    scans = ug01_scans(grid, traj.truth, seed=2)
+    save_trajectory(traj, tmp_path / "run", scans, meta={"part": "tune"})
     map_yaml = tmp_path / "map" / "map.yaml"
     runs = f"[{{run_dir: {tmp_path / 'run'}, map_name: small, map_yaml: {map_yaml}}}]"
     cmd = [sys.executable, "-m", "scanloc.stages.tune", "study=amcl_real", f"study.runs={runs}"]
@@ -162,9 +199,15 @@ def test_every_study_names_what_the_tune_command_reads(study_file: Path) -> None
     assert study["name"] == study_file.stem
     assert study["objective"] in tune.OBJECTIVES
     assert (REPO / "conf" / "localizer" / f"{study['localizer']}.yaml").is_file()
+    tune_runs = {
+        run for kind in yaml.safe_load((REPO / "conf" / "seeds.yaml").read_text())["runs"].values()
+        for run in kind["tune"]
+    }  # fmt: skip
     for run in study["runs"]:
         tune.check_run_entry(run, study_file.name)
         assert str(run["run_dir"]).startswith("data/trajectories/")
+        name = Path(run["run_dir"]).name  # <site>_<run>: a run of the tune side of the split
+        assert name.removeprefix(f"{run['map_name']}_") in tune_runs, (study_file.name, name)
     localizer = raw_config(study["localizer"], REPO / "conf" / "localizer")
     kind = kind_of(localizer)
     for factor, options in study["factors"].items():

@@ -60,6 +60,26 @@ def site_kinds(params: Mapping[str, Any], where: Path = PARAMS) -> dict[str, str
     return sites
 
 
+def load_runs(root: Path = Path(".")) -> dict[str, Any]:
+    """conf/seeds.yaml `runs`: each site kind's made, localized, tune and scored runs."""
+    return yaml.safe_load((root / RUNS).read_text())["runs"]
+
+
+def run_part(runs: Mapping[str, Any], kind: str, run: str) -> str:
+    """A run's side of the split, written into its meta.json: `tune` (settings are chosen on
+    it, it is never scored) or `evaluation` (localized and scored, never tuned on). The tune
+    command refuses every run whose meta does not say `tune` (scanloc.stages.tune)."""
+    spec = runs[kind]
+    if run in spec["tune"]:
+        return "tune"
+    if run in spec["localized"]:
+        return "evaluation"
+    raise ValueError(
+        f"{RUNS}: field 'runs.{kind}': run '{run}' is in neither 'localized' nor 'tune'; "
+        "expected every made run in one of them"
+    )
+
+
 def _job(stage: str, site: str, kind: str, run: str, odometry: str = "wheel") -> dict[str, str]:
     trajectory = f"{site}_{run}"
     if stage == "localize_cnn":

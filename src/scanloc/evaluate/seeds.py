@@ -12,7 +12,9 @@ keeps the per-run metric name for its mean, with `<name>_ci95_low`, `<name>_ci95
   `converged`: share that converged at all before the first kidnap (else steps_to_converge is
   censored); `recovered`: kidnaps recovered at all per run (mean, `_total`).
 - `kidnaps_recovered_frac`: share of all kidnaps of the set recovered within 20 steps
-  (metrics.RECOVERED_WITHIN_STEPS), pooled over the runs (`n_kidnaps` trials); Wilson interval.
+  (metrics.RECOVERED_WITHIN_STEPS), pooled over the runs (`n_kidnaps` events in `n_runs`
+  runs). Its interval counts runs, not events (`clustered_wilson_interval`): a run's kidnaps
+  share its route, its scans and its filter, so they are not independent trials.
 - `steps_to_converge` (mean, `_median`, `_max` = worst seed) and `recovery_steps` (`_mean`,
   `_median`, `_max` over all kidnaps): censored counts as in metrics.py (a localizer that never
   converges in a stretch gets the stretch's length), so they are lower bounds where censored.
@@ -52,13 +54,47 @@ def wilson_interval(successes: int, trials: int, z: float = Z95) -> tuple[float,
             f"wilson_interval: expected 0 <= successes <= trials, trials > 0; "
             f"got {successes} of {trials}"
         )
-    p = successes / trials
-    denom = 1.0 + z * z / trials
-    centre = (p + z * z / (2 * trials)) / denom
-    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denom
     # At 0 (or n) successes the bound is 0 (or 1) exactly; rounding would leave ~1e-17.
-    low = 0.0 if successes == 0 else max(0.0, centre - half)
-    high = 1.0 if successes == trials else min(1.0, centre + half)
+    return wilson_interval_at(successes / trials, float(trials), z)
+
+
+def clustered_wilson_interval(
+    successes: Sequence[int], trials: Sequence[int], z: float = Z95
+) -> tuple[float, float, float]:
+    """(low, high, effective n) of the pooled rate sum(successes) / sum(trials) over runs
+    (clusters) whose events may be correlated: a cluster-robust Wilson interval, the Wilson
+    score interval at the effective sample size n / deff. The design effect deff is the
+    ratio estimator's between-run variance over the binomial one; n_eff is clipped to
+    [runs, events], i.e. an intra-run correlation between 0 (independent events: the pooled
+    Wilson interval) and 1 (a run is one trial). Where every event succeeded or failed, the
+    spread cannot be estimated and the run count is used: the cautious end."""
+    y, n = np.asarray(successes, np.float64), np.asarray(trials, np.float64)
+    if y.shape != n.shape or y.size == 0 or (n <= 0).any() or (y < 0).any() or (y > n).any():
+        raise ValueError(
+            "clustered_wilson_interval: expected per-run successes and trials of equal length, "
+            f"0 <= successes <= trials, trials > 0; got {list(successes)} of {list(trials)}"
+        )
+    runs, total = y.size, float(n.sum())
+    p = float(y.sum()) / total
+    binomial = p * (1.0 - p) / total
+    if runs < 2 or binomial == 0.0:
+        n_eff = float(runs)
+    else:
+        between = runs / (runs - 1) * float(np.sum((y - p * n) ** 2)) / total**2
+        n_eff = total if between == 0.0 else total * binomial / between
+    n_eff = min(max(n_eff, float(runs)), total)
+    low, high = wilson_interval_at(p, n_eff, z)
+    return low, high, n_eff
+
+
+def wilson_interval_at(rate: float, n: float, z: float = Z95) -> tuple[float, float]:
+    """The Wilson score interval of an observed `rate` at a (possibly fractional) sample size
+    `n`: what `wilson_interval` gives for rate · n successes in n trials."""
+    denom = 1.0 + z * z / n
+    centre = (rate + z * z / (2 * n)) / denom
+    half = z * math.sqrt(rate * (1 - rate) / n + z * z / (4 * n * n)) / denom
+    low = 0.0 if rate == 0.0 else max(0.0, centre - half)
+    high = 1.0 if rate == 1.0 else min(1.0, centre + half)
     return low, high
 
 
@@ -76,6 +112,17 @@ def mean_interval(values: Sequence[float]) -> tuple[float, float, float]:
 def _rate(name: str, successes: int, trials: int) -> dict[str, float]:
     low, high = wilson_interval(successes, trials)
     return {name: successes / trials, f"{name}_ci95_low": low, f"{name}_ci95_high": high}
+
+
+def _clustered_rate(name: str, successes: Sequence[int], trials: Sequence[int]) -> dict[str, float]:
+    """A rate pooled over runs with its run-clustered interval and the effective count."""
+    low, high, n_eff = clustered_wilson_interval(successes, trials)
+    return {
+        name: sum(successes) / sum(trials),
+        f"{name}_ci95_low": low,
+        f"{name}_ci95_high": high,
+        f"{name}_effective_n": n_eff,
+    }
 
 
 def _mean(name: str, values: Sequence[float]) -> dict[str, float]:
@@ -98,7 +145,7 @@ def _resolvable_rates(
     if len(ambiguous) != len(runs):
         raise ValueError(f"over_seeds: {len(ambiguous)} look-alike lists for {len(runs)} runs")
     starts = [int(q) for q, flags in zip(quick, ambiguous, strict=True) if not flags[0]]
-    kidnaps = []
+    kidnaps: list[list[int]] = []  # per run, its resolvable kidnaps' outcomes
     for run, flags in zip(runs, ambiguous, strict=True):
         counts = recovery_counts(run) if run.get("kidnaps") else []
         if len(flags) != 1 + len(counts):
@@ -107,17 +154,25 @@ def _resolvable_rates(
                 "stretches"
             )
         pairs = zip(counts, flags[1:], strict=True)
-        kidnaps += [int(c <= RECOVERED_WITHIN_STEPS) for c, a in pairs if not a]
+        outcomes = [int(c <= RECOVERED_WITHIN_STEPS) for c, a in pairs if not a]
+        if outcomes:
+            kidnaps.append(outcomes)
+    n_resolvable = sum(map(len, kidnaps))
     out: dict[str, Any] = {
         "n_starts_ambiguous": len(runs) - len(starts),
         "n_starts_resolvable": len(starts),
-        "n_kidnaps_ambiguous": sum(len(f) - 1 for f in ambiguous) - len(kidnaps),
-        "n_kidnaps_resolvable": len(kidnaps),
+        "n_kidnaps_ambiguous": sum(len(f) - 1 for f in ambiguous) - n_resolvable,
+        "n_kidnaps_resolvable": n_resolvable,
+        "n_runs_kidnaps_resolvable": len(kidnaps),
     }
     if starts:
         out |= _rate("convergence_success_resolvable", sum(starts), len(starts))
     if kidnaps:
-        out |= _rate("kidnaps_recovered_frac_resolvable", sum(kidnaps), len(kidnaps))
+        out |= _clustered_rate(
+            "kidnaps_recovered_frac_resolvable",
+            [sum(k) for k in kidnaps],
+            [len(k) for k in kidnaps],
+        )
     return out
 
 
@@ -142,12 +197,15 @@ def over_seeds(
     kidnapped = [r for r in runs if r.get("kidnaps")]
     if kidnapped:
         counts = [c for r in kidnapped for c in recovery_counts(r)]
-        recovered = sum(
+        recovered = [
             round(float(r["kidnaps_recovered_frac"]) * int(r["kidnaps"])) for r in kidnapped
-        )
+        ]
         out["n_kidnaps"] = len(counts)
+        out["n_runs_kidnapped"] = len(kidnapped)
         out |= _mean("recovered", [float(r["recovered"]) for r in kidnapped])
-        out |= _rate("kidnaps_recovered_frac", recovered, len(counts))
+        out |= _clustered_rate(
+            "kidnaps_recovered_frac", recovered, [int(r["kidnaps"]) for r in kidnapped]
+        )
         out["recovery_steps_mean"] = float(np.mean(counts))
         out["recovery_steps_median"] = float(np.median(counts))
         out["recovery_steps_max"] = max(counts)

@@ -9,7 +9,11 @@ know of it (its other sections are its parts' parameters, localize/kinds.py):
 - `note`: one line for the report's tables;
 - `stages`: which pipeline stages run it (`localize`: every map, log and run; `localize_cnn`:
   the paper's CNN localizers on map 1; `[]`: a documented variant to run by hand);
-- `global_table` (optional, false): whether the report's global-localization table lists it.
+- `global_table` (optional, false): whether the report's global-localization table lists it;
+- `matched_to`, `differs_in` (optional, together): the baseline this variant is compared with
+  and what it changes (`section` or `section.key` entries); every other setting of the two,
+  composed in full, is equal (tests/test_matched_pairs.py). A claim about one file: never
+  inherited by a config that names this one in its defaults.
 Adding a localizer is adding one such file (plus, for a new kind, one registered class).
 A config may inherit from another through its Hydra defaults list (`defaults: [amcl, _self_]`):
 sections merge key by key as Hydra merges them, so metadata is inherited too, unless the file
@@ -29,7 +33,17 @@ import yaml
 CONF_DIR = Path("conf/localizer")
 GROUPS = ("tracking", "global", "learned")
 STAGES = ("localize", "localize_cnn")
-META_FIELDS = ("name", "kind", "group", "note", "stages", "global_table")
+META_FIELDS = (
+    "name",
+    "kind",
+    "group",
+    "note",
+    "stages",
+    "global_table",
+    "matched_to",
+    "differs_in",
+)
+MATCH_FIELDS = ("matched_to", "differs_in")
 
 
 @dataclass(frozen=True)
@@ -42,6 +56,8 @@ class LocalizerInfo:
     note: str
     stages: tuple[str, ...]
     global_table: bool
+    matched_to: str | None = None
+    differs_in: tuple[str, ...] = ()
 
 
 def _read(path: Path) -> dict[str, Any]:
@@ -117,7 +133,29 @@ def _info(name: str, cfg: Mapping[str, Any], path: Path) -> LocalizerInfo:
         note=str(need("note", "one line for the report")),
         stages=tuple(stages),
         global_table=bool(meta.get("global_table", False)),
+        **_match(path),
     )
+
+
+def _match(path: Path) -> dict[str, Any]:
+    """`matched_to` and `differs_in` of the file's own `meta` (not its parents'): a variant of
+    a matched variant changes more than its parent claimed."""
+    own = _read(path).get("meta") or {}
+    given = [key for key in MATCH_FIELDS if key in own]
+    if not given:
+        return {}
+    differs_in = own.get("differs_in")
+    if len(given) == 1 or not isinstance(own["matched_to"], str):
+        raise ValueError(
+            f"{path}: section 'meta': keys 'matched_to' (a localizer's name) and 'differs_in' "
+            f"(a list of sections or section.key) go together; got {given}"
+        )
+    if not isinstance(differs_in, list) or not differs_in:
+        raise ValueError(
+            f"{path}: section 'meta': key 'differs_in': expected a non-empty list of sections or "
+            f"section.key, got {differs_in!r}"
+        )
+    return {"matched_to": own["matched_to"], "differs_in": tuple(map(str, differs_in))}
 
 
 def load_catalog(conf_dir: Path = CONF_DIR) -> dict[str, LocalizerInfo]:

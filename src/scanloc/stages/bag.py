@@ -27,7 +27,7 @@ from scanloc.bags.truth_map import SplitSettings, map_from_truth
 from scanloc.io import atomic_dir
 from scanloc.real.log_mapping import save_log_map
 from scanloc.sensor.simulate import laser_spec_from_config
-from scanloc.sites import check_listed
+from scanloc.sites import check_listed, load_runs, run_part
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.stages.site_budget import check_site
 from scanloc.trajectory.format import save_trajectory
@@ -106,6 +106,7 @@ def main(cfg: DictConfig) -> None:
         )  # fmt: skip
         print(f"bag: {cfg.name}: {training}", file=sys.stderr)
         meta |= {"name": f"{cfg.name}_real", "map": str(cfg.name), "sensor": sensor}
+        meta["part"] = run_part(load_runs(), "bag", "real")
         choice = HydraConfig.get().runtime.choices.get("sensor")
         meta.setdefault("sensor_source", f"conf/sensor/{choice}.yaml")
         with atomic_dir(cfg.map_dir) as tmp:

@@ -50,7 +50,7 @@ from scanloc.real.split import (
 )
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
-from scanloc.sites import check_listed
+from scanloc.sites import check_listed, load_runs, run_part
 from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
 from scanloc.stages.site_budget import check_site
 from scanloc.trajectory.format import Trajectory, save_trajectory
@@ -236,14 +236,16 @@ def main(cfg: DictConfig) -> None:
             "truth_frame": "robot base (laser pose ⊕ mount⁻¹)",
             **metrics,
         }
+        run_lists = load_runs()
         for name, (traj, index) in runs.items():
             run_meta = meta | {
                 "name": f"{cfg.log_name}_{name}",
+                "part": run_part(run_lists, "log", name),
                 "log_scans": [int(index[0]), int(index[-1])],
                 "uncovered_steps": np.flatnonzero(np.isin(index, uncovered)).tolist(),
             }
             if name == "tune":
-                run_meta |= {"part": "mapping (for choosing settings; never scored)"}
+                run_meta |= {"part_note": "the mapping part (for choosing settings; never scored)"}
                 del run_meta["uncovered_steps"]  # in the map by construction
             save_trajectory(traj, cfg[f"{name}_dir"], ranges[index], run_meta, grid)
         real, index = runs["real"]
@@ -260,6 +262,7 @@ def main(cfg: DictConfig) -> None:
         }
         sim_meta = meta | {
             "name": f"{cfg.log_name}_sim",
+            "part": run_part(run_lists, "log", "sim"),
             "noise": noise,
             "odometry": sim_odometry,
             "log_scans": [int(index[0]), int(index[-1])],
@@ -281,7 +284,8 @@ def main(cfg: DictConfig) -> None:
         )
         heldout_meta = meta | {
             "name": f"{cfg.log_name}_tune_heldout",
-            "part": (
+            "part": run_part(run_lists, "log", "tune_heldout"),
+            "part_note": (
                 "the middle of each mapping stretch, localized in map/ built from the rest of the "
                 "mapping part (for choosing settings where the map is incomplete; never scored)"
             ),

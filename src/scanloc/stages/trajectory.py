@@ -12,6 +12,7 @@ from omegaconf import DictConfig
 from scanloc.sensor.laser import LaserSpec
 from scanloc.sensor.noise import noise_from_config
 from scanloc.sensor.simulate import laser_spec_from_config, simulate_scans
+from scanloc.sites import run_part
 from scanloc.stages._app import stage_main, timed_stage, to_dict
 from scanloc.trajectory.drive import drive_trajectory
 from scanloc.trajectory.format import Trajectory, save_trajectory
@@ -85,6 +86,7 @@ def main(cfg: DictConfig) -> None:
             "name": cfg.name,
             "map": cfg.map_name,
             "run": to_dict(cfg.run),
+            "part": run_part(to_dict(cfg.runs), "map", str(cfg.run.get("name", cfg.run.kind))),
             "profile": cfg.profile.name,
             "trajectory": to_dict(run),
             "sensor": to_dict(cfg.sensor),

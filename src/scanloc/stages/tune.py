@@ -4,8 +4,9 @@ a study in conf/study/ names the localizer, its tune runs, the objective and the
 Run by hand, never by DVC: what a study chooses is a person's decision, written with its
 figures into the localizer's config. The tune runs are never scored (a real log's mapping
 part, a map's tune_kidnap run: conf/seeds.yaml), so a setting is never chosen on the runs that
-judge it. Prints one Markdown row per trial; the last line is one JSON object of the result
-(also written to `out_path`).
+judge it: the command refuses any run whose meta.json does not say `part: tune`. Prints one
+Markdown row per trial; the last line is one JSON object of the result (also written to
+`out_path`).
 
 Why coordinate descent and not a full grid: the amcl_real study's 7 factors of 2–4 options
 are 2592 configurations; one factor at a time, in the study's order, is 13 trials a sweep (a
@@ -245,6 +246,24 @@ def check_run_entry(spec: Mapping[str, Any], where: str) -> None:
         )
 
 
+def check_tune_part(spec: Mapping[str, Any], where: str) -> None:
+    """Refuse a run that is not a tune run: choosing a setting on a run that is scored is
+    tuning on the test set. A run's part is in its meta.json (written by the stage that made
+    it from conf/seeds.yaml `runs`, scanloc.sites.run_part); a run without one is refused too,
+    since nothing says it is never scored."""
+    meta_path = Path(spec["run_dir"]) / "meta.json"
+    if not meta_path.is_file():
+        raise ValueError(f"{where}: field 'runs': {meta_path} does not exist")
+    part = json.loads(meta_path.read_text()).get("part")
+    if part != "tune":
+        said = f"says part {part!r}" if part is not None else "has no field 'part'"
+        raise ValueError(
+            f"{where}: field 'runs': run {spec['run_dir']} is not a tune run (its meta.json "
+            f"{said}; expected 'tune'). A study may choose settings on tune runs only "
+            "(conf/seeds.yaml `runs.<kind>.tune`), never on the runs that are scored"
+        )
+
+
 def tune_run(spec: Mapping[str, Any], localizer: str, max_steps: int | None) -> TuneRun:
     """A study's run entry (REQUIRED_RUN_KEYS, OPTIONAL_RUN_KEYS) loaded, with the localizer
     composed for its map as the localize stage composes it."""
@@ -296,6 +315,7 @@ def main(cfg: DictConfig) -> None:
     max_steps = None if cfg.max_steps is None else int(cfg.max_steps)
     for spec in study["runs"]:
         check_run_entry(spec, f"conf/study/{study['name']}.yaml")
+        check_tune_part(spec, f"conf/study/{study['name']}.yaml")
     runs = [tune_run(spec, study["localizer"], max_steps) for spec in study["runs"]]
     first = runs[0].inputs.trajectory
     fitted = fit_odometry_alphas(first.odometry, first.truth, first.kidnap_steps)

@@ -84,23 +84,20 @@ class MclConfig:
                     f"{where}: section 'sensor': unknown key {key!r}; known: {', '.join(known)}"
                 )
 
-        def part(cls_: type) -> Any:
-            return sensor_part(cls_, config, where)
-
-        choice = part(_SensorChoice)
+        choice = sensor_part(_SensorChoice, config, where)
         if choice.laser_model_type not in SENSOR_MODELS:
             raise ValueError(
                 f"{where}: section 'sensor': key 'laser_model_type': expected one of "
                 f"{sorted(SENSOR_MODELS)}, got {choice.laser_model_type!r}"
             )
         for params in _MODEL_PARAMS:  # every model's keys are checked, as ROS reads them all
-            part(params)
+            sensor_part(params, config, where)
         return cls(
             filter=parse_section(FilterParams, config, "filter", where),
             odometry=parse_section(OdometryParams, config, "motion", where),
-            laser=part(LaserParams),
+            laser=sensor_part(LaserParams, config, where),
             laser_model_type=choice.laser_model_type,
-            sensor=part(SENSOR_MODELS[choice.laser_model_type].Params),
+            sensor=sensor_part(SENSOR_MODELS[choice.laser_model_type].Params, config, where),
             map_half_cell_offset=choice.map_half_cell_offset,
         )
 

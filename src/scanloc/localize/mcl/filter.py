@@ -364,6 +364,5 @@ def run_filter(
         np.array([est.cov for est in estimates]),
         np.array([est.n_particles for est in estimates]),
     )
-    counts = {"n_injected": pf.resampler.injected} | pf.mixing.counts()
-    counts |= getattr(pf.proposal, "counts", dict)()
+    counts = {"n_injected": pf.resampler.injected} | pf.mixing.counts() | pf.proposal.counts()
     return Localization(table, setup_s, seconds, counts)

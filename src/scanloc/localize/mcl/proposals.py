@@ -40,6 +40,10 @@ class Proposal(Protocol):
         """q at each pose (N, 3), per m² and radian."""
         ...
 
+    def counts(self) -> dict[str, int]:
+        """What the proposal did over the run, for the localize stage's timing record."""
+        ...
+
 
 class UniformProposal:
     """Uniform over the free cells (amcl's uniformPoseGenerator with its free-cell list):
@@ -65,6 +69,10 @@ class UniformProposal:
 
     def observe(self, scan: np.ndarray) -> None:
         """The uniform proposal ignores the scan."""
+
+    def counts(self) -> dict[str, int]:
+        """Nothing to count: sampling free cells costs no network run."""
+        return {}
 
     def poses_from_uniforms(self, u: np.ndarray) -> np.ndarray:
         """Poses from uniforms u (n, 2) in [0, 1): u[:, 0] picks the cell, u[:, 1] the heading."""
