@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from scanloc.evaluate.metrics import expected_calibration_error
+from scanloc.report.sections.real_data import split_sentence
 from test_report import CONTEXT, build, make_artifacts
 
 HISTOGRAM = {
@@ -84,3 +85,15 @@ def test_the_reliability_of_the_verified_score_is_measured(report_md) -> None:
     assert ece == pytest.approx(abs(2 / 3 - 0.8))
     assert f"| sparse_obstacles_drive | 60 | 66.7 % | 80.0 % | {ece:.3f} |" in text
     assert "verified_reliability.png" in text
+
+
+def test_the_split_sentence_says_which_share_of_the_held_out_part_is_scored() -> None:
+    """A profile that caps the scored scans (fr079 at laptop: 600 of 2395) says so; a log
+    scored whole does not."""
+    capped = {"mode": "window", "map_scans": 2396, "map_share": 0.5001, "evaluation_scans": 600}
+    capped["evaluation_share"] = 0.1252
+    text = split_sentence("fr079", {"split": capped})
+    assert "the first 600 of its 2395 held-out scans" in text
+    whole = {"mode": "window", "map_scans": 456, "map_share": 0.5011, "evaluation_scans": 454}
+    whole["evaluation_share"] = 0.4989
+    assert "held-out scans" not in split_sentence("intel", {"split": whole})

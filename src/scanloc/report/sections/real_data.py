@@ -57,6 +57,14 @@ def _gap_sentence(log: str, sim: Mapping[str, Any], real: Mapping[str, Any]) -> 
     return f"{log}: " + "; ".join(parts) + "."
 
 
+def _held_out(split: Mapping[str, Any]) -> int | None:
+    """The log's scans that do not build the map (the map's count over its share, less it)."""
+    scans, share = split.get("map_scans"), split.get("map_share")
+    if not scans or not share:
+        return None
+    return round(scans / share) - int(scans)
+
+
 def split_sentence(log: str, meta: Mapping[str, Any]) -> str:
     """The split of the log and the share the map covers, from the run's meta.json."""
     split, cover = meta.get("split") or {}, meta.get("coverage") or {}
@@ -68,6 +76,13 @@ def split_sentence(log: str, meta: Mapping[str, Any]) -> str:
         f"{split.get('evaluation_scans')} ({fixed(split.get('evaluation_share'), percent=True)}) "
         "are localized and scored"
     )
+    held_out = _held_out(split)
+    if held_out is not None and held_out > split["evaluation_scans"]:
+        text += (
+            f": the first {split['evaluation_scans']} of its {held_out} held-out scans "
+            "(the profile's `split.max_evaluation_scans`, conf/scale/<profile>/real.yaml), not "
+            "the whole held-out part"
+        )
     if split.get("optimistic"):
         text += " — optimistic: the map holds every scored scan"
     if cover.get("steps"):
