@@ -9,13 +9,15 @@
 #                   `dvc repro` in a copy, docs/experiments.md's sweeps, dvc.lock against the tree)
 #   make test-slow / make test-e2e   one of those two kinds alone
 # The tests run in parallel (pytest-xdist, one worker per core, one file per worker at a time:
-# module fixtures are built once); `make test XDIST=` runs them in one process.
+# module fixtures are built once), in collection order, not xdist's largest-file-first: the
+# longest file (the smoke repro) goes first (tests/conftest.py); `make test XDIST=` runs them
+# in one process.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(abspath $(VENV)/bin)
 # The CPU build of torch first: a bare `torch` requirement can pull a CUDA build of several GB.
 TORCH_SPEC ?= torch==2.13.0
-XDIST ?= -n auto --dist loadfile
+XDIST ?= -n auto --dist loadfile --no-loadscope-reorder
 PYTEST := PATH="$(BIN):$$PATH" python -m pytest $(XDIST)
 
 .PHONY: setup repro sites readme test test-slow test-e2e test-all lint bench

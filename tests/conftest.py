@@ -39,9 +39,10 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 # The critical path of `make test-all`: the smoke `dvc repro` of this file takes most of CI's
-# time on one worker. pytest-xdist (--dist loadfile) hands out whole files in collection order,
-# so the longest go first (longest-processing-time-first): this file, the other end-to-end
-# ones, the slow ones, then the fast suite fills the other worker beside them.
+# time on one worker. pytest-xdist (--dist loadfile --no-loadscope-reorder, the Makefile) hands
+# out whole files in collection order, so the longest go first (longest-processing-time-first):
+# this file, the other end-to-end ones, the slow ones; the fast suite fills the other worker.
+# (xdist's own reorder puts the files with the most tests first: the smoke repro started last.)
 CRITICAL_PATH = "test_pipeline_e2e.py"
 
 

@@ -36,8 +36,9 @@ TABLE2_KEYS = {
 }
 TABLE1_ROWS = ("mlp", "cnn1d_20k", "cnn1d_200k", "cnn2d")
 PAPER_MAPS = ("sparse_obstacles", "simple_rooms")
-# A user's maps, added as the README says: a 50 x 25 m rooms map and a 30 x 30 m sparse one.
-EXTRA_MAPS = {
+# A user's maps, added as the README says: a 50 x 25 m rooms map and a 30 x 30 m sparse one
+# (both in the scans-from-scratch check, tests/test_pipeline_e2e_scans.py).
+USER_MAPS = {
     "big_rooms": {
         "config": "generated_rooms",
         "overrides": "map.width=50.0 map.height=25.0 map.seed=2",
@@ -49,6 +50,11 @@ EXTRA_MAPS = {
         "depends": "conf/map/generated_sparse.yaml",
     },
 }
+# The smoke repro runs one site of each kind it can: the rooms map beside the paper's two, and
+# the first real log (intel): a site costs the repro 16 stages, and this repro is the critical
+# path of CI (tests/conftest.py); each further site of a kind takes the same code path.
+EXTRA_MAPS = {"big_rooms": USER_MAPS["big_rooms"]}
+SMOKE_LOGS = ("intel",)
 GLOBAL_LOCALIZERS = ("amcl_global", "amcl_recovery", "hybrid")
 REAL_LOG = REPO_ROOT.parent / "shared" / "data" / "carmen" / "intel-corrected.log.gz"
 
@@ -65,9 +71,12 @@ def project_files() -> list[str]:
     return [f for f in out.splitlines() if (REPO_ROOT / f).is_file()]
 
 
-def copy_project(dest: Path, profile: str, extra_maps: dict | None = None) -> Path:
+def copy_project(
+    dest: Path, profile: str, extra_maps: dict | None = None, logs: tuple[str, ...] = SMOKE_LOGS
+) -> Path:
     """A fresh copy of the project (no data, models or DVC cache) set to `profile`, with
-    `extra_maps` added to params.yaml's `maps`."""
+    `extra_maps` added to params.yaml's `maps` and only the real `logs` of its `real_logs`
+    (those present beside the repository)."""
     for rel in project_files():
         target = dest / rel
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -78,13 +87,14 @@ def copy_project(dest: Path, profile: str, extra_maps: dict | None = None) -> Pa
     params["maps"] |= extra_maps or {}
     # The real logs live beside the repository (../shared): point the copy at them, or drop
     # the real-data stages where they are absent.
-    logs = {}
+    present = {}
     for name, entry in (params.get("real_logs") or {}).items():
         log = (REPO_ROOT / entry["log"]).resolve()
-        if log.is_file():
-            logs[name] = entry | {"log": str(log)}
-    params["real_logs"] = logs
-    params["real_ablation_logs"] = [n for n in params.get("real_ablation_logs") or [] if n in logs]
+        if log.is_file() and name in logs:
+            present[name] = entry | {"log": str(log)}
+    params["real_logs"] = present
+    ablated = params.get("real_ablation_logs") or []
+    params["real_ablation_logs"] = [n for n in ablated if n in present]
     (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     # as `make repro` does: the sites and jobs of this params.yaml written down for dvc.yaml
     subprocess.run([sys.executable, "-m", "scanloc.sites"], cwd=dest, check=True)
@@ -117,7 +127,7 @@ def lock_outs(repo: Path, prefixes: tuple[str, ...]) -> dict[str, str]:
         for name, stage in lock["stages"].items()
         if name.startswith(prefixes)
         for out in stage.get("outs", [])
-        if out["path"].startswith("data/") and not any(m in out["path"] for m in EXTRA_MAPS)
+        if out["path"].startswith("data/") and not any(m in out["path"] for m in USER_MAPS)
     }
 
 

@@ -12,9 +12,10 @@ keeps the per-run metric name for its mean, with `<name>_ci95_low`, `<name>_ci95
   `converged`: share that converged at all before the first kidnap (else steps_to_converge is
   censored); `recovered`: kidnaps recovered at all per run (mean, `_total`).
 - `kidnaps_recovered_frac`: share of all kidnaps of the set recovered within 20 steps
-  (metrics.RECOVERED_WITHIN_STEPS), pooled over the runs (`n_kidnaps` events in `n_runs`
-  runs). Its interval counts runs, not events (`clustered_wilson_interval`): a run's kidnaps
-  share its route, its scans and its filter, so they are not independent trials.
+  (metrics.RECOVERED_WITHIN_STEPS), pooled over the runs (`n_kidnaps` events in
+  `n_runs_kidnapped` runs). Its interval counts runs, not events (`clustered_wilson_interval`,
+  the effective count beside it as `_effective_n`): a run's kidnaps share its route, its scans
+  and its filter, so they are not independent trials.
 - `steps_to_converge` (mean, `_median`, `_max` = worst seed) and `recovery_steps` (`_mean`,
   `_median`, `_max` over all kidnaps): censored counts as in metrics.py (a localizer that never
   converges in a stretch gets the stretch's length), so they are lower bounds where censored.
@@ -22,8 +23,9 @@ keeps the per-run metric name for its mean, with `<name>_ci95_low`, `<name>_ci95
 - Given which stretches are *ambiguous* (a copy of the map renders the same scans for their
   first 20 steps: look_alikes.py), `n_starts_ambiguous` / `n_kidnaps_ambiguous` count them and
   `convergence_success_resolvable` / `kidnaps_recovered_frac_resolvable` are the two rates over
-  the other stretches only (`n_starts_resolvable`, `n_kidnaps_resolvable` trials): what a
-  localizer achieves where the scans can tell.
+  the other stretches only (`n_starts_resolvable`, `n_kidnaps_resolvable` trials, the latter
+  in `n_runs_kidnaps_resolvable` runs, its interval by run): what a localizer achieves where
+  the scans can tell.
 
 Real logs are judged over *filter* seeds instead (one run, the particle filters' seeds:
 `over_filter_seeds`, `evaluate_filter_seeds`): the run is the log, only the filter's draws
@@ -54,7 +56,6 @@ def wilson_interval(successes: int, trials: int, z: float = Z95) -> tuple[float,
             f"wilson_interval: expected 0 <= successes <= trials, trials > 0; "
             f"got {successes} of {trials}"
         )
-    # At 0 (or n) successes the bound is 0 (or 1) exactly; rounding would leave ~1e-17.
     return wilson_interval_at(successes / trials, float(trials), z)
 
 
@@ -93,6 +94,7 @@ def wilson_interval_at(rate: float, n: float, z: float = Z95) -> tuple[float, fl
     denom = 1.0 + z * z / n
     centre = (rate + z * z / (2 * n)) / denom
     half = z * math.sqrt(rate * (1 - rate) / n + z * z / (4 * n * n)) / denom
+    # At a rate of 0 (or 1) the bound is 0 (or 1) exactly; rounding would leave ~1e-17.
     low = 0.0 if rate == 0.0 else max(0.0, centre - half)
     high = 1.0 if rate == 1.0 else min(1.0, centre + half)
     return low, high

@@ -100,7 +100,9 @@ SEEDS_NOTE = (
     "compared localizers on the scored part (real) and on its kidnap run, with the wheel and "
     "with the laser (scan-matched) odometry. Each cell is the mean over the seeds with its "
     "Student-t 95 % interval; 'worst' is the worst seed's share of steps more than 1 m off. "
-    "A deterministic localizer (the learned one) runs once: its interval is its value."
+    "A deterministic localizer (the learned one) runs once: its interval is its value. "
+    "The seeds measure the filter's own randomness on this one log, no more: how a localizer "
+    "fares on another log or another drive through this building is not in the interval."
 )
 
 
