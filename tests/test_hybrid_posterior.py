@@ -89,14 +89,19 @@ def grid_poses() -> np.ndarray:
     return np.stack([x, y, th], axis=-1)
 
 
-def drive() -> tuple[np.ndarray, np.ndarray]:
-    """Truth = odometry (a clean drive from INITIAL) and its scans."""
+def clean_drive(steps: int) -> np.ndarray:
+    """INITIAL, then `steps` odometry increments STEP: poses (steps + 1, 3)."""
     poses = [INITIAL]
-    for _ in range(UPDATES):
+    for _ in range(steps):
         x, y, th = poses[-1]
         c, s = np.cos(th), np.sin(th)
         poses.append(np.array([x + c * STEP[0], y + s * STEP[0], wrap_angle(th + STEP[2])]))
-    truth = np.array(poses)
+    return np.array(poses)
+
+
+def drive() -> tuple[np.ndarray, np.ndarray]:
+    """Truth = odometry (a clean drive from INITIAL) and its scans."""
+    truth = clean_drive(UPDATES)
     return truth, ug01_scans(GRID, truth, seed=7)
 
 
@@ -237,13 +242,9 @@ SEEDS = range(4)
 def kidnap_case() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(odometry, truth, scans): the drive's odometry for KIDNAP_AT + 1 updates; the truth
     jumps to KIDNAP_TO at the last."""
-    odometry = [INITIAL]
-    for _ in range(KIDNAP_AT):
-        x, y, th = odometry[-1]
-        c, s = np.cos(th), np.sin(th)
-        odometry.append(np.array([x + c * STEP[0], y + s * STEP[0], wrap_angle(th + STEP[2])]))
+    odometry = clean_drive(KIDNAP_AT)
     truth = np.array([*odometry[:KIDNAP_AT], KIDNAP_TO])
-    return np.array(odometry), truth, ug01_scans(GRID, truth, seed=7)
+    return odometry, truth, ug01_scans(GRID, truth, seed=7)
 
 
 def histogram(poses: np.ndarray, weights: np.ndarray) -> np.ndarray:

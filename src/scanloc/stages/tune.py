@@ -43,7 +43,7 @@ from scanloc.evaluate.metrics import (
     convergence_metrics,
     localization_metrics,
 )
-from scanloc.io import write_json
+from scanloc.io import read_json, write_json
 from scanloc.localize.kinds import LocalizeInputs, run_localizer, with_seed
 from scanloc.localize.mcl.motion_fit import fit_odometry_alphas
 from scanloc.localize.show import resolved
@@ -254,7 +254,7 @@ def check_tune_part(spec: Mapping[str, Any], where: str) -> None:
     meta_path = Path(spec["run_dir"]) / "meta.json"
     if not meta_path.is_file():
         raise ValueError(f"{where}: field 'runs': {meta_path} does not exist")
-    part = json.loads(meta_path.read_text()).get("part")
+    part = read_json(meta_path).get("part")
     if part != "tune":
         said = f"says part {part!r}" if part is not None else "has no field 'part'"
         raise ValueError(
