@@ -12,11 +12,13 @@ import pytest
 from scanloc.evaluate.look_alikes import (
     LookAlikeParams,
     Symmetry,
+    beam_evidence,
     look_alikes_json,
     map_look_alikes,
     map_symmetries,
     run_look_alikes,
 )
+from scanloc.sensor.noise import RangeGaussianNoise
 from scanloc.sensor.raycast import CastMap, cast_exact
 from scanloc.trajectory.format import Trajectory, save_trajectory
 from scanloc.world.map_server import save_map
@@ -24,6 +26,7 @@ from scanloc.world.occupancy_grid import OCCUPIED, OccupancyGrid
 from small_world import SPEC, small_map
 
 PARAMS = LookAlikeParams()
+NOISE = RangeGaussianNoise()  # the UG01 datasheet's, as the maps' runs
 ORIGIN = (-1.0, 2.0, 0.0)  # off the world's origin: the symmetries' shifts must account for it
 
 
@@ -54,7 +57,7 @@ def test_a_copied_room_is_found_as_a_shift_and_keeps_the_stretch_ambiguous() -> 
     assert any(s == pytest.approx((6.0, 0.0), abs=1e-9) for s in shifts)
     assert all(math.hypot(*s) >= PARAMS.min_separation_m for s in shifts)
     assert len(symmetries) <= PARAMS.max_candidates
-    stretches = run_look_alikes(grid, SPEC, _turning_in_place(), [], PARAMS)
+    stretches = run_look_alikes(grid, SPEC, NOISE, _turning_in_place(), [], PARAMS)
     assert stretches == [
         {"start": 0, "look_alikes": 1, "ambiguous": True, "resolved_at": PARAMS.window}
     ]
@@ -63,7 +66,7 @@ def test_a_copied_room_is_found_as_a_shift_and_keeps_the_stretch_ambiguous() -> 
 def test_a_difference_in_view_resolves_the_stretch_when_it_comes_into_view() -> None:
     grid = _two_rooms(box_in_second=True)
     poses = _turning_in_place()
-    (stretch,) = run_look_alikes(grid, SPEC, poses, [], PARAMS)
+    (stretch,) = run_look_alikes(grid, SPEC, NOISE, poses, [], PARAMS)
     assert stretch["look_alikes"] == 1 and not stretch["ambiguous"]
     resolved = stretch["resolved_at"]
     assert 0 < resolved < len(poses)
@@ -73,15 +76,45 @@ def test_a_difference_in_view_resolves_the_stretch_when_it_comes_into_view() -> 
     at_truth = cast_exact(cast_map, poses, SPEC.beam_angles(), SPEC.range_max)
     at_copy = cast_exact(cast_map, copy, SPEC.beam_angles(), SPEC.range_max)
     pairs = zip(at_truth, at_copy, strict=True)
-    same = [np.allclose(a, b, atol=PARAMS.tolerance_m) for a, b in pairs]
+    same = [np.allclose(a, b, atol=1e-6, equal_nan=True) for a, b in pairs]
     assert all(same[:resolved]) and not same[resolved]
+
+
+def test_the_evidence_is_the_expected_log_likelihood_ratio_of_the_noise_model() -> None:
+    """Against a Monte Carlo estimate: scans drawn at the truth under the UG01 noise, the mean
+    log-likelihood ratio of the truth's Gaussian over the copy's, every beam summed."""
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0.3, 5.0, (1, 50))
+    b = a + rng.normal(0.0, 0.02, a.shape)
+    sa, sb = NOISE.sigma(a), NOISE.sigma(b)
+    z = a + sa * rng.standard_normal((20000, a.shape[1]))
+    log_ratio = np.log(sb / sa) - (z - a) ** 2 / (2 * sa**2) + (z - b) ** 2 / (2 * sb**2)
+    expected = log_ratio.sum(axis=1).mean()
+    assert beam_evidence(a, b, NOISE, 0.0, np.inf)[0] == pytest.approx(expected, rel=0.03)
+
+
+def test_a_copy_a_few_centimetres_off_on_every_beam_is_told_apart() -> None:
+    """The case a per-beam tolerance lets through: every beam 3 cm off (within one 5 cm cell)
+    is little evidence per beam and much over a scan's beams."""
+    truth = np.full((1, 600), 2.0)
+    per_beam = beam_evidence(truth, truth + 0.03, NOISE, 0.025, PARAMS.beam_cap_nats)[0] / 600
+    assert per_beam < 0.5  # no beam alone tells them apart
+    assert 600 * per_beam > PARAMS.llr_threshold_nats  # the scan does, at once
+    assert beam_evidence(truth, truth, NOISE, 0.025, PARAMS.beam_cap_nats)[0] == 0.0
+
+
+def test_a_beam_says_at_most_the_cap_and_no_return_at_both_says_nothing() -> None:
+    cap = PARAMS.beam_cap_nats
+    a = np.array([[np.inf, np.inf, 2.0, 2.0]])
+    b = np.array([[np.inf, 2.0, np.inf, 4.0]])
+    assert beam_evidence(a, b, NOISE, 0.025, cap)[0] == pytest.approx(3 * cap)
 
 
 def test_kidnaps_split_a_run_into_stretches_judged_alone() -> None:
     grid = _two_rooms(box_in_second=True)
     seen_at_once = _turning_in_place()[::-1]  # starts facing the spot: told apart at step 0
     truth = np.vstack([seen_at_once, _turning_in_place()])
-    stretches = run_look_alikes(grid, SPEC, truth, [20], PARAMS)
+    stretches = run_look_alikes(grid, SPEC, NOISE, truth, [20], PARAMS)
     assert [s["start"] for s in stretches] == [0, 20]
     assert stretches[0]["look_alikes"] == 0 and not stretches[0]["ambiguous"]
     assert stretches[1]["look_alikes"] == 1 and stretches[1]["resolved_at"] > 0
@@ -123,7 +156,7 @@ def test_a_point_symmetric_room_has_a_half_turn_that_maps_scans_onto_scans() -> 
 def test_an_asymmetric_room_has_no_look_alike() -> None:
     room = small_map()
     truth = np.column_stack([np.full(20, 5.0), np.full(20, 2.2), np.linspace(0, math.pi, 20)])
-    assert run_look_alikes(room, SPEC, truth, [], PARAMS)[0]["look_alikes"] == 0
+    assert run_look_alikes(room, SPEC, NOISE, truth, [], PARAMS)[0]["look_alikes"] == 0
 
 
 def test_quarter_turns_move_poses_as_rotations() -> None:
@@ -144,14 +177,18 @@ def test_the_map_figures_count_ambiguous_starts_and_kidnaps(tmp_path) -> None:
         times=np.arange(steps) * 0.1, truth=truth, odometry=truth.copy(), kidnap_steps=(20,)
     )
     ranges = np.zeros((steps, SPEC.num_beams), np.float32)
-    save_trajectory(trajectory, run_dir, ranges, {"sensor": dataclasses.asdict(SPEC)})
+    meta = {"sensor": dataclasses.asdict(SPEC), "noise": dataclasses.asdict(NOISE)}
+    save_trajectory(trajectory, run_dir, ranges, meta)
     doc = map_look_alikes(tmp_path / "map" / "map.yaml", {"room_kidnap": run_dir}, PARAMS)
     assert (doc["starts"], doc["starts_ambiguous"]) == (1, 1)
     assert (doc["kidnaps"], doc["kidnaps_ambiguous"]) == (1, 1)
     assert doc["window"] == PARAMS.window and doc["symmetries"]
     assert look_alikes_json({"room": doc}) == look_alikes_json({"room": doc})
-    save_trajectory(trajectory, run_dir, ranges, {"sensor": {"num_beams": 1.5}})
+    save_trajectory(trajectory, run_dir, ranges, meta | {"sensor": {"num_beams": 1.5}})
     with pytest.raises(ValueError, match=r"room_kidnap/meta.json: field 'sensor'"):
+        map_look_alikes(tmp_path / "map" / "map.yaml", {"room_kidnap": run_dir}, PARAMS)
+    save_trajectory(trajectory, run_dir, ranges, meta | {"noise": {"kind": "laser"}})
+    with pytest.raises(ValueError, match=r"room_kidnap/meta.json: field 'noise'"):
         map_look_alikes(tmp_path / "map" / "map.yaml", {"room_kidnap": run_dir}, PARAMS)
 
 

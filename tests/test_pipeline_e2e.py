@@ -72,11 +72,16 @@ def project_files() -> list[str]:
 
 
 def copy_project(
-    dest: Path, profile: str, extra_maps: dict | None = None, logs: tuple[str, ...] = SMOKE_LOGS
+    dest: Path,
+    profile: str,
+    extra_maps: dict | None = None,
+    logs: tuple[str, ...] = SMOKE_LOGS,
+    tune_maps: int = 1,
 ) -> Path:
     """A fresh copy of the project (no data, models or DVC cache) set to `profile`, with
-    `extra_maps` added to params.yaml's `maps` and only the real `logs` of its `real_logs`
-    (those present beside the repository)."""
+    `extra_maps` added to params.yaml's `maps`, its first `tune_maps` tune maps, only the real
+    `logs` of its `real_logs` (those present beside the repository) and the tune studies those
+    sites can run."""
     for rel in project_files():
         target = dest / rel
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -88,18 +93,31 @@ def copy_project(
     # The real logs live beside the repository (../shared): point the copy at them, or drop
     # the real-data stages where they are absent.
     present = {}
-    for name, entry in (params.get("real_logs") or {}).items():
+    params_logs = params.get("real_logs") or {}
+    for name, entry in params_logs.items():
         log = (REPO_ROOT / entry["log"]).resolve()
         if log.is_file() and name in logs:
             present[name] = entry | {"log": str(log)}
     params["real_logs"] = present
     ablated = params.get("real_ablation_logs") or []
     params["real_ablation_logs"] = [n for n in ablated if n in present]
+    params["tune_maps"] = dict(list((params.get("tune_maps") or {}).items())[:tune_maps])
+    dropped_logs = set(params_logs) - set(present)
+    params["tune_studies"] = [
+        study for study in params.get("tune_studies") or []
+        if not dropped_logs & study_sites(dest / "conf" / "study" / f"{study}.yaml")
+    ]  # fmt: skip
     (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     # as `make repro` does: the sites and jobs of this params.yaml written down for dvc.yaml
     subprocess.run([sys.executable, "-m", "scanloc.sites"], cwd=dest, check=True)
     subprocess.run(["git", "init", "-q"], cwd=dest, check=True)
     return dest
+
+
+def study_sites(study_file: Path) -> set[str]:
+    """The sites a tune study's explicit run entries localize in."""
+    runs = yaml.safe_load(study_file.read_text())["runs"]
+    return {run["map_name"] for run in runs if "map_name" in run}
 
 
 def dvc(cwd: Path, *args: str, timeout: int = 1500) -> subprocess.CompletedProcess[str]:
@@ -272,6 +290,23 @@ def test_smoke_repro_runs_the_real_log(smoke_repo: Path) -> None:
     html = (smoke_repo / "reports/report.html").read_text()
     log_section = html.split('<h2 id="site-intel">Site intel (log)</h2>', 1)[1].split("<h2", 1)[0]
     assert "sim-to-real" in log_section and "intel_real" in log_section
+
+
+def test_smoke_repro_records_each_tune_study_on_tune_runs_only(smoke_repo: Path) -> None:
+    """Every study of tune_studies ran as a DVC stage (the tune map's kidnap run, and intel's
+    mapping part where the log is present), its trials a plot of `dvc plots show`."""
+    params = yaml.safe_load((smoke_repo / "params.yaml").read_text())
+    assert list(params["tune_maps"]) and "hybrid" in params["tune_studies"]
+    for study in params["tune_studies"]:
+        record = json.loads((smoke_repo / f"reports/tuning/{study}.json").read_text())
+        assert record["trials"][0]["trial"] == 0 and all("score" in t for t in record["trials"])
+        for run in record["runs"]:
+            meta_path = smoke_repo / "data/trajectories" / run.split("/")[0] / "meta.json"
+            assert json.loads(meta_path.read_text())["part"] == "tune", (study, run)
+    hybrid = json.loads((smoke_repo / "reports/tuning/hybrid.json").read_text())
+    assert hybrid["runs"] == [f"{m}_tune_kidnap/wheel" for m in params["tune_maps"]]
+    plots = json.loads(dvc(smoke_repo, "plots", "show", "--json").stdout)
+    assert any("reports/tuning/hybrid.json" in key for key in plots), sorted(plots)
 
 
 def test_two_experiments_compare_in_one_narrow_table(smoke_repo: Path) -> None:

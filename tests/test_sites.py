@@ -23,7 +23,9 @@ from scanloc.sites import (
 REPO_ROOT = Path(__file__).resolve().parents[1]
 RUNS = {
     "runs": {
-        "map": {"localized": ["drive", "kidnap"], "over_filter_seeds": []},
+        "map": {"made": ["drive", "kidnap", "tune"], "localized": ["drive", "kidnap"],
+                "over_filter_seeds": []},
+        "tune_map": {"made": ["tune"], "localized": [], "over_filter_seeds": []},
         "log": {"localized": ["real"], "over_filter_seeds": ["real"]},
         "bag": {"localized": ["real"], "over_filter_seeds": []},
     },
@@ -34,6 +36,7 @@ PARAMS = {
     "bags": {"robot": {}},
     "maps": {"m1": {}, "m2": {}},
     "real_logs": {"aces": {}},
+    "tune_maps": {"t1": {"config": "generated_rooms"}},
 }
 
 
@@ -44,18 +47,35 @@ def test_the_committed_sites_yaml_is_what_params_yaml_gives() -> None:
 
 
 def test_sites_come_in_params_order_maps_logs_bags_whatever_the_file_order() -> None:
-    assert site_kinds(PARAMS) == {"m1": "map", "m2": "map", "aces": "log", "robot": "bag"}
+    assert site_kinds(PARAMS) == {
+        "m1": "map", "m2": "map", "t1": "tune_map", "aces": "log", "robot": "bag"
+    }  # fmt: skip
     variables = pipeline_vars(PARAMS, RUNS, {"map1_small": "m1"})
-    assert variables["site_list"] == "{m1:map,m2:map,aces:log,robot:bag}"
+    assert variables["site_list"] == "{m1:map,m2:map,aces:log,robot:bag}"  # no tune map
     assert list(variables["scan_sets"]) == [
         "map1_small",
         "m1_val",
         "m2_val",
+        "t1_val",
         "aces_val",
         "robot_val",
     ]
     assert variables["sites"]["aces"] == {"kind": "log", "site_scans": "data/scans/aces_mapping"}
     assert variables["sites"]["robot"]["site_scans"] == "data/scans/robot_val"
+
+
+def test_a_tune_map_is_made_and_trained_like_a_map_and_never_localized() -> None:
+    variables = pipeline_vars(PARAMS, RUNS, {})
+    assert variables["map_sites"] == {"m1": {}, "m2": {}, "t1": {"config": "generated_rooms"}}
+    assert variables["trajectories"] == {
+        "m1-drive": {"map": "m1", "run": "drive"}, "m1-kidnap": {"map": "m1", "run": "kidnap"},
+        "m1-tune": {"map": "m1", "run": "tune"}, "m2-drive": {"map": "m2", "run": "drive"},
+        "m2-kidnap": {"map": "m2", "run": "kidnap"}, "m2-tune": {"map": "m2", "run": "tune"},
+        "t1-tune": {"map": "t1", "run": "tune"},
+    }  # fmt: skip
+    assert variables["sites"]["t1"] == {"kind": "map", "site_scans": "data/scans/t1_val"}
+    assert variables["scan_sets"]["t1_val"]["kind"] == "map"
+    assert not any(job["site"] == "t1" for job in variables["jobs"].values())
 
 
 def test_jobs_are_each_sites_localized_runs_the_paper_cnns_and_the_filter_seed_runs() -> None:

@@ -148,6 +148,24 @@ def test_the_command_refuses_a_scored_run(tmp_path: Path) -> None:
     assert "is not a tune run" in done.stderr and "Traceback" not in done.stderr
 
 
+def test_every_tune_map_stands_for_that_run_of_each_tune_map(tmp_path: Path) -> None:
+    params = tmp_path / "params.yaml"
+    params.write_text(yaml.safe_dump({"maps": {"m1": {}}, "tune_maps": {"t1": {}, "t2": {}}}))
+    maps = tune.tune_maps(params)
+    assert maps == ["t1", "t2"]
+    explicit = {"run_dir": "data/trajectories/intel_tune", "map_name": "intel"}
+    runs = tune.expand_runs([{"every_tune_map": "tune_kidnap"}, explicit], maps, "s.yaml")
+    assert runs == [
+        {"run_dir": "data/trajectories/t1_tune_kidnap", "map_name": "t1"},
+        {"run_dir": "data/trajectories/t2_tune_kidnap", "map_name": "t2"},
+        explicit,
+    ]
+    for bad, maps_given in (({"every_tune_map": "tune_kidnap", "odometry": "laser"}, maps),
+                            ({"every_tune_map": "tune_kidnap"}, [])):  # fmt: skip
+        with pytest.raises(ValueError, match=r"s\.yaml: field 'runs'.*every_tune_map"):
+            tune.expand_runs([bad], maps_given, "s.yaml")
+
+
 def test_tracking_cuts_a_run_at_its_kidnaps() -> None:
     traj = Trajectory(
         times=np.arange(6.0), truth=np.zeros((6, 3)), odometry=np.zeros((6, 3)), kidnap_steps=(2, 5)
@@ -203,7 +221,8 @@ def test_every_study_names_what_the_tune_command_reads(study_file: Path) -> None
         run for kind in yaml.safe_load((REPO / "conf" / "seeds.yaml").read_text())["runs"].values()
         for run in kind["tune"]
     }  # fmt: skip
-    for run in study["runs"]:
+    maps = tune.tune_maps(REPO / "params.yaml")
+    for run in tune.expand_runs(study["runs"], maps, study_file.name):
         tune.check_run_entry(run, study_file.name)
         assert str(run["run_dir"]).startswith("data/trajectories/")
         name = Path(run["run_dir"]).name  # <site>_<run>: a run of the tune side of the split

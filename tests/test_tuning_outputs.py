@@ -1,8 +1,7 @@
-"""What a study chose is what its localizer's config says: a study's output
-(reports/tuning/<study>.json, written by `python -m scanloc.stages.tune study=<study>`) is
-committed beside the config it decided (not as DVC metrics: its every trial's figures would
-be hundreds of columns of `dvc metrics show`), and this test fails when the two disagree or
-when the study scored a run that is not a tune run."""
+"""What a study chose is what its localizer's config says: a study's record
+(reports/tuning/<study>.json, the tune@<study> stage's plot, committed with dvc.lock) sits
+beside the config it decided, and this test fails when the two disagree, when the study scored
+a run that is not a tune run, or when a study of params.yaml `tune_studies` has no record."""
 
 from __future__ import annotations
 
@@ -26,8 +25,10 @@ TUNE_RUNS = {
 }
 
 
-def test_the_hybrids_studies_are_committed() -> None:
-    assert {TUNING / "hybrid.json", TUNING / "hybrid_adaptive.json"} <= set(OUTPUTS)
+def test_every_tune_stage_has_its_record() -> None:
+    studies = yaml.safe_load((REPO / "params.yaml").read_text())["tune_studies"]
+    assert {"hybrid", "hybrid_adaptive", "amcl_best"} <= set(studies)
+    assert {TUNING / f"{study}.json" for study in studies} <= set(OUTPUTS)
 
 
 @pytest.mark.parametrize("path", OUTPUTS, ids=lambda p: p.stem)

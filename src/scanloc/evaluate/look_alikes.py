@@ -1,10 +1,12 @@
-"""Look-alike places: the stretches of a run that no localizer can resolve in time.
+"""Look-alike places: the stretches of a run whose scans cannot tell the true place from a copy
+in time.
 
 A kidnapped robot can be re-localized only as fast as its scans tell the true place from the
 places that look like it. On a map of copied rooms (map 2, `simple_rooms`) a pose and its copy
 one room over render the same scan, beam for beam, for as long as the laser sees nothing but
-the copied part. No sensor model, particle count or network can tell them apart then, so a
-goal such as "every kidnap recovered within 20 steps" is out of reach for such a stretch.
+the copied part. Within the laser's noise no sensor model can tell them apart then, so a goal
+such as "every kidnap recovered within 20 steps" is out of reach for such a stretch; a copy
+that differs by a few centimetres on many beams can be told apart, by a model that uses them.
 
 What is measured, for each stretch of a run (its start and each kidnap):
 1. The map's **symmetries**: rigid motions g (a rotation by 0°, 90°, 180° or 270°, then a
@@ -12,16 +14,24 @@ What is measured, for each stretch of a run (its start and each kidnap):
    cross-correlating the occupied mask with each rotation of itself (FFT); peaks that cover at
    least `min_overlap` of the occupied cells, `min_separation_m` or more from the identity,
    at most `max_candidates` of them.
-2. For each g, the **look-alike track** g ⊕ truth_t over the stretch's first `window` steps:
-   the noise-free scan rendered there (exact ray casting) is compared with the one rendered at
-   the truth. It *looks alike* at a step when every beam agrees within `tolerance_m` (both
-   without a return counts as agreeing); a track pose outside the map or in a cell that is not
-   free does not.
-3. The stretch **resolves** at the first step by which every look-alike track has differed at
-   least once (that many steps of scans are needed, and enough, to rule all of them out); it
-   is **ambiguous** when some track looks alike at every step of the window.
-Noise-free scans make this an upper bound on what the scans can tell: a real localizer also
-needs the difference to stand out of the noise.
+2. For each g, the **copy's track** over the stretch's first `window` steps: the truth moved
+   rigidly so that its first pose lands on g's image of it, then *posed by optimisation*
+   (Nelder-Mead over a shift and a turn of the whole track, within `refine_radius_m` and
+   `refine_angle_deg` of g): the copy that best imitates the truth's scans, since a
+   correlation peak can sit a cell off the exact copy.
+3. The **evidence** against the copy: the expected log-likelihood ratio of the truth's scans
+   at the truth over at the copy, under the run's own range-noise model (its meta.json
+   `noise`; Gaussian, so a beam's expectation is the KL divergence of the two Gaussians) and
+   every beam, summed over the steps. A beam gives at most `beam_cap_nats` (a real scanner has
+   outliers: no single beam is decisive beyond that), a no-return beam against a return the
+   cap, a copy pose outside the free space the cap on every beam. Noise-free scans are
+   rendered at both (exact ray casting); sigma is at least half a map cell (the map's own
+   quantisation).
+4. The stretch **resolves** at the first step at which the evidence against every copy has
+   reached `llr_threshold_nats` (ln 99: the truth then holds 99 % of the two's posterior
+   from even odds, the confidence a localizer needs to settle); it is **ambiguous** when a
+   copy's evidence stays below it over the whole window. An expectation: a localizer with a
+   coarser sensor model (fewer beams, a wider likelihood field) needs more steps than this.
 """
 
 from __future__ import annotations
@@ -36,18 +46,18 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.optimize import minimize
 from scipy.signal import fftconvolve
 
 from scanloc.evaluate.metrics import RECOVERED_WITHIN_STEPS
 from scanloc.io import read_json
 from scanloc.sensor.laser import LaserSpec
+from scanloc.sensor.noise import NoiseModel, RangeGaussianNoise, noise_from_config
 from scanloc.sensor.raycast import CastMap, cast_exact
 from scanloc.sensor.simulate import laser_spec_from_config
 from scanloc.trajectory.format import load_trajectory
 from scanloc.world.map_server import load_map
 from scanloc.world.occupancy_grid import OccupancyGrid
-
-SNAP_CELLS = 2  # how far a symmetry's image may be moved to meet the exact copy (cells)
 
 
 @dataclass(frozen=True)
@@ -55,7 +65,10 @@ class LookAlikeParams:
     """How symmetries are found and scans compared (module docstring; conf/evaluate.yaml)."""
 
     window: int = RECOVERED_WITHIN_STEPS
-    tolerance_m: float = 0.05
+    llr_threshold_nats: float = math.log(99.0)
+    beam_cap_nats: float = math.log(100.0)
+    refine_radius_m: float = 0.15
+    refine_angle_deg: float = 3.0
     min_overlap: float = 0.3
     min_separation_m: float = 1.0
     max_candidates: int = 8
@@ -68,8 +81,10 @@ class LookAlikeParams:
             )
         if not 0.0 < self.min_overlap <= 1.0:
             raise ValueError(f"min_overlap must lie in (0, 1], got {self.min_overlap}")
-        if self.tolerance_m < 0 or self.min_separation_m < 0:
-            raise ValueError("tolerance_m and min_separation_m must be >= 0")
+        if min(self.llr_threshold_nats, self.beam_cap_nats) <= 0:
+            raise ValueError("llr_threshold_nats and beam_cap_nats must be > 0")
+        if min(self.refine_radius_m, self.refine_angle_deg, self.min_separation_m) < 0:
+            raise ValueError("refine_radius_m, refine_angle_deg and min_separation_m must be >= 0")
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any], source: str) -> LookAlikeParams:
@@ -165,83 +180,121 @@ def _renderable(grid: OccupancyGrid, poses: np.ndarray) -> np.ndarray:
     return ok
 
 
-def _scans_agree(a: np.ndarray, b: np.ndarray, tolerance: float) -> np.ndarray:
-    """Per row: every beam of two rendered scans agrees (within tolerance, or both no return)."""
-    both_none = np.isinf(a) & np.isinf(b)
-    with np.errstate(invalid="ignore"):
-        close = np.abs(a - b) <= tolerance
-    return np.all(both_none | close, axis=1)
+def beam_evidence(
+    at_truth: np.ndarray, at_copy: np.ndarray, noise: NoiseModel, floor_m: float, cap: float
+) -> np.ndarray:
+    """Per row, the expected log-likelihood ratio of a scan rendered at the truth over one
+    rendered at the copy, summed over beams (module docstring, step 3): each finite pair the KL
+    divergence of N(a, σ(a)²) from N(b, σ(b)²), capped at `cap`; no return against a return
+    the cap; no return at both nothing."""
+    a, b = np.asarray(at_truth, np.float64), np.asarray(at_copy, np.float64)
+    finite_a, finite_b = np.isfinite(a), np.isfinite(b)
+    both = finite_a & finite_b
+    sigma = noise.sigma if isinstance(noise, RangeGaussianNoise) else np.zeros_like
+    sa = np.maximum(sigma(np.where(both, a, 0.0)), floor_m)
+    sb = np.maximum(sigma(np.where(both, b, 0.0)), floor_m)
+    diff = np.where(both, a, 0.0) - np.where(both, b, 0.0)
+    kl = np.log(sb / sa) + (sa**2 + diff**2) / (2.0 * sb**2) - 0.5
+    per_beam = np.where(both, np.minimum(kl, cap), np.where(finite_a != finite_b, cap, 0.0))
+    return per_beam.sum(axis=1)
 
 
-def _look_alike_at(
-    grid: OccupancyGrid,
-    cast_map: CastMap,
-    laser: LaserSpec,
-    pose: np.ndarray,
-    scan: np.ndarray,
-    symmetry: Symmetry,
-    params: LookAlikeParams,
-) -> Symmetry | None:
-    """The symmetry, or one shifted by up to `SNAP_CELLS` cells, whose image of `pose` renders
-    `scan` (the correlation peak of a copied room can sit a cell or two off the exact copy);
-    the nearest such shift, or None."""
-    res = float(grid.resolution)
-    offsets = range(-SNAP_CELLS, SNAP_CELLS + 1)
-    shifts = sorted(((dx, dy) for dx in offsets for dy in offsets), key=lambda d: math.hypot(*d))
-    variants = [
-        Symmetry(symmetry.quarter_turns, symmetry.tx + dx * res, symmetry.ty + dy * res, 0.0)
-        for dx, dy in shifts
-    ]
-    moved = np.vstack([v.apply(pose[None]) for v in variants])
-    ok = np.flatnonzero(_renderable(grid, moved))
-    if not len(ok):
-        return None
-    rendered = cast_exact(cast_map, moved[ok], laser.beam_angles(), laser.range_max)
-    alike = _scans_agree(rendered, np.broadcast_to(scan, rendered.shape), params.tolerance_m)
-    if not alike.any():
-        return None
-    best = variants[int(ok[np.flatnonzero(alike)[0]])]
-    return Symmetry(best.quarter_turns, best.tx, best.ty, symmetry.overlap)
+def copy_track(poses: np.ndarray, symmetry: Symmetry, correction: Sequence[float]) -> np.ndarray:
+    """The truth moved rigidly so that its first pose lands on the symmetry's image of it,
+    shifted by correction[:2] and turned by correction[2] about that image (step 2)."""
+    dx, dy, dtheta = (float(c) for c in correction)
+    anchor = symmetry.apply(poses[:1])[0]
+    angle = symmetry.quarter_turns * math.pi / 2.0 + dtheta
+    c, s = math.cos(angle), math.sin(angle)
+    rel = poses[:, :2] - poses[0, :2]
+    x = anchor[0] + dx + c * rel[:, 0] - s * rel[:, 1]
+    y = anchor[1] + dy + s * rel[:, 0] + c * rel[:, 1]
+    heading = np.remainder(poses[:, 2] + angle + math.pi, 2.0 * math.pi) - math.pi
+    return np.column_stack([x, y, heading])
+
+
+OUT_OF_BOUNDS = 1e12  # nats: the optimisation's value outside its bounds
+
+
+@dataclass(frozen=True)
+class EvidenceModel:
+    """What the evidence against a copy needs: the map, its ray caster, the run's laser and
+    noise, and the parameters."""
+
+    grid: OccupancyGrid
+    cast_map: CastMap
+    laser: LaserSpec
+    noise: NoiseModel
+    params: LookAlikeParams
+
+    def per_step(self, copy: np.ndarray, at_truth: np.ndarray) -> np.ndarray:
+        """The evidence against the copy at each step (a pose outside the free space: the cap
+        on every beam)."""
+        cap = self.params.beam_cap_nats
+        out = np.full(len(copy), cap * self.laser.num_beams)
+        ok = _renderable(self.grid, copy)
+        if ok.any():
+            rendered = cast_exact(self.cast_map, copy[ok], self.laser.beam_angles(),
+                                  self.laser.range_max)  # fmt: skip
+            floor = 0.5 * float(self.grid.resolution)
+            out[ok] = beam_evidence(at_truth[ok], rendered, self.noise, floor, cap)
+        return out
+
+    def best_copy(self, poses: np.ndarray, at_truth: np.ndarray, symmetry: Symmetry) -> np.ndarray:
+        """The evidence per step against the copy that imitates the truth best over `poses`
+        (step 2's optimisation, kept within its bounds: the truth itself, a few cells away,
+        would imitate better still)."""
+        radius = self.params.refine_radius_m
+        max_turn = math.radians(self.params.refine_angle_deg)
+
+        def total(correction: np.ndarray) -> float:
+            excess = max(0.0, math.hypot(correction[0], correction[1]) - radius)
+            excess += max(0.0, abs(correction[2]) - max_turn)
+            if excess > 0.0:  # outside the bounds: worse than any copy inside them
+                return OUT_OF_BOUNDS * (1.0 + excess)
+            copy = copy_track(poses, symmetry, correction)
+            return float(self.per_step(copy, at_truth).sum())
+
+        res = float(self.grid.resolution)
+        simplex = np.array([[0, 0, 0], [res, 0, 0], [0, res, 0], [0, 0, math.radians(1.0)]])
+        found = minimize(total, np.zeros(3), method="Nelder-Mead",
+                         options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-2,
+                                  "maxfev": 120})  # fmt: skip
+        best = found.x if found.fun <= total(np.zeros(3)) else np.zeros(3)
+        return self.per_step(copy_track(poses, symmetry, best), at_truth)
 
 
 def stretch_resolution(
-    grid: OccupancyGrid,
-    cast_map: CastMap,
-    laser: LaserSpec,
-    truth: np.ndarray,
-    symmetries: Sequence[Symmetry],
-    params: LookAlikeParams,
+    model: EvidenceModel, truth: np.ndarray, symmetries: Sequence[Symmetry]
 ) -> dict[str, int | bool]:
-    """One stretch's poses (its first `window` steps are used): how many symmetries give a
-    look-alike at its first step, whether one lasts the window, and the step at which the last
-    one has been told apart (module docstring, steps 2-3; `resolved_at` = window when
-    ambiguous)."""
+    """One stretch's poses (its first `window` steps are used): how many copies are look-alikes
+    at its first step (their evidence below the threshold there), whether one stays below it
+    over the window, and the step at which the evidence against every copy has reached it
+    (module docstring, steps 2-4; `resolved_at` = window when ambiguous). The evidence only
+    grows with steps, so a copy already told apart at the first step, posed at its best for
+    that step alone, is told apart over any window."""
+    params = model.params
     poses = np.asarray(truth[: params.window], dtype=np.float64)
-    angles = laser.beam_angles()
-    at_truth = cast_exact(cast_map, poses, angles, laser.range_max)
-    first_difference = []
-    for candidate in symmetries:
-        symmetry = _look_alike_at(grid, cast_map, laser, poses[0], at_truth[0], candidate, params)
-        if symmetry is None:
+    at_truth = cast_exact(model.cast_map, poses, model.laser.beam_angles(), model.laser.range_max)
+    threshold = params.llr_threshold_nats
+    resolved_steps = []
+    for symmetry in symmetries:
+        if model.best_copy(poses[:1], at_truth[:1], symmetry)[0] >= threshold:
             continue
-        moved = symmetry.apply(poses)
-        alike = np.zeros(len(poses), dtype=bool)
-        ok = _renderable(grid, moved)
-        rendered = cast_exact(cast_map, moved[ok], angles, laser.range_max)
-        alike[ok] = _scans_agree(rendered, at_truth[ok], params.tolerance_m)
-        differs = np.flatnonzero(~alike)
-        first_difference.append(int(differs[0]) if len(differs) else len(poses))
-    ambiguous = any(step >= len(poses) for step in first_difference)
+        evidence = np.cumsum(model.best_copy(poses, at_truth, symmetry))
+        reached = np.flatnonzero(evidence >= threshold)
+        resolved_steps.append(int(reached[0]) if len(reached) else len(poses))
     return {
-        "look_alikes": len(first_difference),
-        "ambiguous": ambiguous,
-        "resolved_at": max(first_difference, default=0),
+        "look_alikes": len(resolved_steps),
+        "ambiguous": any(step >= len(poses) for step in resolved_steps),
+        "resolved_at": max(resolved_steps, default=0),
     }
 
 
 def run_look_alikes(
     grid: OccupancyGrid,
     laser: LaserSpec,
+    noise: NoiseModel,
     truth: np.ndarray,
     kidnap_steps: Sequence[int],
     params: LookAlikeParams,
@@ -249,11 +302,11 @@ def run_look_alikes(
 ) -> list[dict[str, int | bool]]:
     """Every stretch of a run (the start, then each kidnap), with its first step."""
     symmetries = map_symmetries(grid, params) if symmetries is None else symmetries
-    cast_map = CastMap.from_grid(grid)
+    model = EvidenceModel(grid, CastMap.from_grid(grid), laser, noise, params)
     bounds = [0, *kidnap_steps, len(truth)]
     out = []
     for start, stop in itertools.pairwise(bounds):
-        result = stretch_resolution(grid, cast_map, laser, truth[start:stop], symmetries, params)
+        result = stretch_resolution(model, truth[start:stop], symmetries)
         out.append({"start": int(start), **result})
     return out
 
@@ -267,6 +320,15 @@ def run_laser(run_dir: Path) -> LaserSpec:
         raise ValueError(f"{meta_path}: field 'sensor': {err}") from None
 
 
+def run_noise(run_dir: Path) -> NoiseModel:
+    """The range noise a run's scans were rendered with (its meta.json `noise`)."""
+    meta_path = run_dir / "meta.json"
+    try:
+        return noise_from_config(read_json(meta_path).get("noise"))
+    except ValueError as err:
+        raise ValueError(f"{meta_path}: field 'noise': {err}") from None
+
+
 def map_look_alikes(
     map_yaml: Path, runs: Mapping[str, Path], params: LookAlikeParams
 ) -> dict[str, Any]:
@@ -278,12 +340,14 @@ def map_look_alikes(
     for name, run_dir in runs.items():
         traj, _ = load_trajectory(run_dir)
         per_run[name] = run_look_alikes(
-            grid, run_laser(run_dir), traj.truth, traj.kidnap_steps, params, symmetries
-        )
+            grid, run_laser(run_dir), run_noise(run_dir), traj.truth, traj.kidnap_steps,
+            params, symmetries,
+        )  # fmt: skip
     kidnaps = [s for run in per_run.values() for s in run[1:]]
     return {
         "window": params.window,
-        "tolerance_m": params.tolerance_m,
+        "llr_threshold_nats": round(params.llr_threshold_nats, 6),
+        "beam_cap_nats": round(params.beam_cap_nats, 6),
         "symmetries": [
             {k: round(v, 6) for k, v in dataclasses.asdict(s).items()} for s in symmetries
         ],

@@ -1,12 +1,16 @@
-"""`tune`: choose a localizer's settings on tune runs, by coordinate descent (conf/tune.yaml;
-a study in conf/study/ names the localizer, its tune runs, the objective and the factors).
+"""`tune` stage: choose a localizer's settings on tune runs, by coordinate descent
+(conf/tune.yaml; a study in conf/study/ names the localizer, its tune runs, the objective and
+the factors).
 
-Run by hand, never by DVC: what a study chooses is a person's decision, written with its
-figures into the localizer's config. The tune runs are never scored (a real log's mapping
-part, a map's tune_kidnap run: conf/seeds.yaml), so a setting is never chosen on the runs that
-judge it: the command refuses any run whose meta.json does not say `part: tune`. Prints one
-Markdown row per trial; the last line is one JSON object of the result (also written to
-`out_path`).
+DVC runs each study of params.yaml `tune_studies` (`tune@<study>`) and tracks its record,
+reports/tuning/<study>.json (every trial, its score, the choice); the choice is written into
+the localizer's config by a person, with its figures, and tests/test_tuning_outputs.py fails
+when the config no longer holds it. The tune runs are never scored (a tune map's or a map's
+tune_kidnap run, a real log's mapping part: conf/seeds.yaml), so a setting is never chosen on
+the runs that judge it: the stage refuses any run whose meta.json does not say `part: tune`.
+A study's run entry `{every_tune_map: <run>}` stands for that run of every tune map
+(params.yaml `tune_maps`): generated maps nothing is scored on. Prints one Markdown row per
+trial; the last line is one JSON object of the result.
 
 Why coordinate descent and not a full grid: the amcl_real study's 7 factors of 2–4 options
 are 2592 configurations; one factor at a time, in the study's order, is 13 trials a sweep (a
@@ -48,7 +52,8 @@ from scanloc.localize.kinds import LocalizeInputs, run_localizer, with_seed
 from scanloc.localize.mcl.motion_fit import fit_odometry_alphas
 from scanloc.localize.show import resolved
 from scanloc.sensor.simulate import laser_spec_from_config
-from scanloc.stages._app import conf_dir, stage_main, to_dict
+from scanloc.sites import PARAMS, site_kinds
+from scanloc.stages._app import conf_dir, stage_main, timed_stage, to_dict
 from scanloc.stages.localize import ODOMETRY_SOURCES, laser_mount, select_odometry
 from scanloc.trajectory.format import Trajectory, load_trajectory
 
@@ -223,8 +228,33 @@ def coordinate_descent(
     return chosen, trials
 
 
+EVERY_TUNE_MAP = "every_tune_map"
 REQUIRED_RUN_KEYS = ("run_dir", "map_name")
 OPTIONAL_RUN_KEYS = ("map_yaml", "sensor_file", "odometry")
+
+
+def tune_maps(params_path: Path = PARAMS) -> list[str]:
+    """The tune maps of params.yaml, in its order."""
+    params = yaml.safe_load(params_path.read_text()) or {}
+    return [site for site, kind in site_kinds(params, params_path).items() if kind == "tune_map"]
+
+
+def expand_runs(entries: Sequence[Mapping[str, Any]], maps: Sequence[str], where: str) -> list:
+    """A study's run entries with each `{every_tune_map: <run>}` replaced by that run of every
+    tune map in `maps`."""
+    runs: list[dict[str, Any]] = []
+    for spec in entries:
+        if EVERY_TUNE_MAP not in spec:
+            runs.append(dict(spec))
+            continue
+        if len(spec) != 1 or not maps:
+            raise ValueError(
+                f"{where}: field 'runs': entry {dict(spec)}: expected '{EVERY_TUNE_MAP}' alone"
+                + ("" if maps else f", and at least one tune map in {PARAMS} `tune_maps`")
+            )
+        run = spec[EVERY_TUNE_MAP]
+        runs += [{"run_dir": f"data/trajectories/{m}_{run}", "map_name": m} for m in maps]
+    return runs
 
 
 def check_run_entry(spec: Mapping[str, Any], where: str) -> None:
@@ -312,23 +342,26 @@ def main(cfg: DictConfig) -> None:
             f"conf/study/{study['name']}.yaml: field 'objective': expected one of "
             f"{sorted(OBJECTIVES)}, got {study['objective']!r}"
         )
+    where = f"conf/study/{study['name']}.yaml"
     max_steps = None if cfg.max_steps is None else int(cfg.max_steps)
-    for spec in study["runs"]:
-        check_run_entry(spec, f"conf/study/{study['name']}.yaml")
-        check_tune_part(spec, f"conf/study/{study['name']}.yaml")
-    runs = [tune_run(spec, study["localizer"], max_steps) for spec in study["runs"]]
-    first = runs[0].inputs.trajectory
-    fitted = fit_odometry_alphas(first.odometry, first.truth, first.kidnap_steps)
-    seeds = [int(s) for s in study.get("seeds", cfg.seeds)]
-    chosen, trials = coordinate_descent(
-        study["factors"],
-        fitted,
-        runs,
-        seeds,
-        study["objective"],
-        int(cfg.passes),
-        float(study.get("min_gain", cfg.min_gain)),
-    )
+    entries = expand_runs(study["runs"], tune_maps(), where)
+    for spec in entries:
+        check_run_entry(spec, where)
+        check_tune_part(spec, where)
+    seeds = [int(s) for s in study.get("seeds", cfg.seeds)][: cfg.max_seeds]
+    with timed_stage(f"tune_{study['name']}", cfg.timing_dir):
+        runs = [tune_run(spec, study["localizer"], max_steps) for spec in entries]
+        first = runs[0].inputs.trajectory
+        fitted = fit_odometry_alphas(first.odometry, first.truth, first.kidnap_steps)
+        chosen, trials = coordinate_descent(
+            study["factors"],
+            fitted,
+            runs,
+            seeds,
+            study["objective"],
+            int(cfg.passes),
+            float(study.get("min_gain", cfg.min_gain)),
+        )
     result = {
         "study": study["name"],
         "localizer": study["localizer"],
@@ -337,7 +370,7 @@ def main(cfg: DictConfig) -> None:
         "seeds": seeds,
         "fitted_alphas": list(fitted),
         "chosen": chosen,
-        "trials": trials,
+        "trials": [{"trial": i, **trial} for i, trial in enumerate(trials)],
     }
     write_json(Path(cfg.out_path), result)
     print(trials_markdown(trials))

@@ -141,7 +141,7 @@ def look_alike_text(maps: list[str], look_alikes: Mapping[str, Mapping[str, Any]
         return "Look-alike stretches: not available (reports/metrics/look_alikes.json)."
     docs = [look_alikes[name] for name in maps if name in look_alikes]
     window = docs[0]["window"] if docs else MISSING
-    tolerance = f"{100 * docs[0]['tolerance_m']:.0f} cm" if docs else MISSING
+    threshold = f"{docs[0]['llr_threshold_nats']:.1f} nats" if docs else MISSING
     parts = []
     for name in maps:
         doc = look_alikes.get(name)
@@ -159,11 +159,14 @@ def look_alike_text(maps: list[str], look_alikes: Mapping[str, Mapping[str, Any]
     return (
         "Look-alike stretches (reports/metrics/look_alikes.json, evaluate/look_alikes.py): a "
         "start or kidnap is ambiguous when a copy of the map (a turn by a multiple of 90° and a "
-        "shift that carry many walls onto walls) puts the robot where the noise-free scan is "
-        f"the same, every beam within {tolerance}, at each of the stretch's first {window} "
-        "steps: no "
-        "localizer can tell the true place from its copy in time there, and the 'resolvable' "
-        "columns give the rates over the other stretches. " + " ".join(parts)
+        "shift that carry many walls onto walls, then posed to imitate the truth best) stays "
+        f"within {threshold} of the truth over the stretch's first {window} steps: the expected "
+        "log-likelihood ratio of the truth's scans, truth over copy, under the run's own range "
+        "noise and every beam (ln 99: below it the truth holds less than 99 % of the two's "
+        "posterior from even odds). The scans alone then cannot settle the place within the "
+        "window; a localizer may still land on the truth by chance, or by what came before the "
+        "kidnap. The 'resolvable' columns give the rates over the other stretches. "
+        + " ".join(parts)
     )
 
 
