@@ -23,8 +23,11 @@ from scanloc.sites import (
 REPO_ROOT = Path(__file__).resolve().parents[1]
 RUNS = {
     "runs": {
-        "map": {"made": ["drive", "kidnap", "tune"], "localized": ["drive", "kidnap"],
-                "over_filter_seeds": []},
+        "map": {
+            "made": ["drive", "kidnap", "tune"],
+            "localized": ["drive", "kidnap"],
+            "over_filter_seeds": [],
+        },
         "tune_map": {"made": ["tune"], "localized": [], "over_filter_seeds": []},
         "log": {"localized": ["real"], "over_filter_seeds": ["real"]},
         "bag": {"localized": ["real"], "over_filter_seeds": []},
