@@ -175,7 +175,17 @@ def dvc_stages(profile: str, trainer: str) -> dict[str, dict[str, Any]]:
     variables = {
         "profile": profile,
         "trainer": trainer,
-        **{key: params[key] for key in ("maps", "real_logs", "real_ablation_logs", "bags")},
+        **{
+            key: params[key]
+            for key in (
+                "maps",
+                "tune_maps",
+                "real_logs",
+                "real_ablation_logs",
+                "bags",
+                "tune_studies",
+            )
+        },
         **runs,
         **pipeline_vars(params, runs, paper_maps),
     }
@@ -623,7 +633,8 @@ def test_dvc_declares_what_each_stage_reads_and_writes(profile: str, trainer: st
         deps = named(stage.get("deps", []))
         for path in config_inputs(cfg):
             assert inside(path, deps), f"{name} reads {path}, not under its deps {deps}"
-        written = named(stage.get("outs", [])) + named(stage.get("metrics", []))
+        written = [named(stage.get(key, [])) for key in ("outs", "metrics", "plots")]
+        written = [path for paths in written for path in paths]
         for path in config_outputs(config_name, cfg):
             assert inside(path, written), f"{name} writes {path}, not under its outs {written}"
 
@@ -676,23 +687,26 @@ def test_dvc_stage_list_is_the_contract():
         "train_scanlocnet",
         "real_ablation",
         "localize",
+        "tune",
         "evaluate",
         "report",
     }  # `bag` too, once params.yaml lists a bag
     maps = set(params["maps"])
+    tune_maps = set(params["tune_maps"])
     logs = set(params["real_logs"])
     assert {"sparse_obstacles", "simple_rooms"} <= maps  # the paper's two maps by default
     assert "intel" in logs  # the real-data evaluation runs by default on the intel log
-    sites = maps | logs
+    sites = maps | tune_maps | logs
     assert expansions("train") == {*ROWS, "ensemble"}
     assert expansions("transfer") == {"scratch", "pretrained"}
-    assert expansions("maps") == maps and expansions("real") == logs
+    assert expansions("maps") == maps | tune_maps and expansions("real") == logs
     assert expansions("scans") == set(DATASETS) | {f"{site}_val" for site in sites}
     assert expansions("train_scanlocnet") == sites
+    assert expansions("tune") == set(params["tune_studies"])
     seeded = ("drive", "kidnap", "kidnap_s1", "kidnap_s2", "kidnap_s3", "kidnap_s4")
     runs = {f"{m}-{r}" for m in maps for r in seeded}
     # tune_kidnap: the studies' run (conf/study/), localized by them, never scored
-    assert expansions("trajectory") == runs | {f"{m}-tune_kidnap" for m in maps}
+    assert expansions("trajectory") == runs | {f"{m}-tune_kidnap" for m in maps | tune_maps}
     real_runs = {f"{log}-{r}" for log in logs for r in ("real", "sim", "kidnap")}
     cnn = {"cnn-drive", "cnn-kidnap"}
     seed_runs = {

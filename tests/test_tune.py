@@ -87,6 +87,31 @@ def test_coordinate_descent_keeps_only_what_lowers_the_score(monkeypatch) -> Non
     assert seeds == {0, 1}
 
 
+def test_an_option_an_earlier_choice_rules_out_is_skipped_with_its_reason(monkeypatch) -> None:
+    def toy(config: Mapping[str, Any], inputs: Any) -> dict[str, float]:
+        if config["w"] == "score" and not config["v"]:
+            raise ValueError("proposal: weights_from 'score' needs verified hypotheses")
+        return {"score": (0.0 if config["v"] else 1.0) + (0.5 if config["w"] == "score" else 0)}
+
+    monkeypatch.setitem(tune.OBJECTIVES, "toy", toy)
+    run = tune.TuneRun("r", None, {"meta": PF, "v": True, "w": "net"})  # type: ignore[arg-type]
+    factors = {"v": [{"v": False}], "w": [{"w": "score"}]}
+    chosen, trials = tune.coordinate_descent(factors, [0] * 4, [run], [0], "toy", canonical=dict)
+    assert chosen == {}
+    assert [t.get("skipped") is None for t in trials] == [True, True, True]  # v=True: no skip
+    bad = {"meta": PF, "v": False, "w": "net"}
+    chosen, trials = tune.coordinate_descent(
+        factors,
+        [0] * 4,
+        [tune.TuneRun("r", None, bad)],
+        [0],
+        "toy",
+        canonical=dict,  # type: ignore[arg-type]
+    )
+    assert trials[-1]["skipped"].startswith("proposal: weights_from") and not trials[-1]["kept"]
+    assert "skipped" in tune.trials_markdown(trials)
+
+
 def test_a_gain_below_min_gain_keeps_the_earlier_choice(monkeypatch) -> None:
     def toy(config: Mapping[str, Any], inputs: Any) -> dict[str, float]:
         return {"score": abs(config["a"] - 3) + config["c"] + 10.0}

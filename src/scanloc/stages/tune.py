@@ -186,7 +186,9 @@ def coordinate_descent(
     which option of an earlier one is best). An option is kept when it lowers the best score
     so far by more than the fraction `min_gain` of it (0: by anything), so that a margin
     inside the seeds' noise does not decide a factor. Two trials are the same when their
-    configs are, every default filled in (`canonical`)."""
+    configs are, every default filled in (`canonical`). An option that cannot go with the
+    choices made so far (its localizer refuses the config: a score weighting once
+    verification is off) is recorded as `skipped`, with the reason, and not scored."""
     if not 0.0 <= min_gain < 1.0:
         raise ValueError(
             f"field 'min_gain' (conf/tune.yaml or the study's): expected a fraction in [0, 1), "
@@ -216,7 +218,12 @@ def coordinate_descent(
                 keys = resolve_option(option, fitted)
                 if whole(chosen | keys) == whole(chosen):
                     continue  # the current setting: already scored
-                result = score(chosen | keys)
+                try:
+                    result = score(chosen | keys)
+                except ValueError as err:  # the option cannot go with an earlier choice
+                    trials.append({"factor": factor, "option": keys, "pass": sweep,
+                                   "skipped": str(err), "kept": False})  # fmt: skip
+                    continue
                 kept = result["score"] < best["score"] * (1.0 - min_gain)
                 trials.append(
                     {"factor": factor, "option": keys, "pass": sweep, **result, "kept": kept}
@@ -323,6 +330,11 @@ def trials_markdown(trials: Sequence[Mapping[str, Any]]) -> str:
         "|---|---|---|" + "---|" * len(figures) + "---|",
     ]
     for t in trials:
+        if "skipped" in t:
+            lines.append(
+                f"| {t['pass']} | {t['factor']} | {t['option']} | skipped: {t['skipped']} |"
+            )
+            continue
         option = ", ".join(
             f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in t["option"].items()
         )
