@@ -16,8 +16,8 @@ pytestmark = pytest.mark.e2e  # two `dvc repro scans` in copies: minutes (make t
 
 
 def test_scans_are_byte_reproducible_from_scratch(tmp_path: Path) -> None:
-    with_maps = copy_project(tmp_path / "with_maps", "smoke", USER_MAPS, logs=(), tune_maps=0)
-    without = copy_project(tmp_path / "without", "smoke", logs=(), tune_maps=0)
+    with_maps = copy_project(tmp_path / "with_maps", "smoke", USER_MAPS, logs=())
+    without = copy_project(tmp_path / "without", "smoke", logs=())
     for repo in (with_maps, without):
         dvc(repo, "repro", "scans")
     made = yaml.safe_load((with_maps / "dvc.lock").read_text())["stages"]

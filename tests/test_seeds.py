@@ -80,7 +80,7 @@ def test_the_pipeline_runs_the_evaluation_set_and_scores_only_it() -> None:
     """conf/seeds.yaml `runs` is the one list (dvc.yaml reads it through `vars`): a map makes a
     run per conf/run file, localizes and scores the evaluation runs, never a tune run."""
     stages = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
-    assert stages["trajectory"]["matrix"]["run"] == "${runs.map.made}"
+    assert stages["trajectory"]["foreach"] == "${trajectories}"  # scanloc.sites: runs.<kind>.made
     runs = yaml.safe_load((CONF / "seeds.yaml").read_text())["runs"]
     assert set(runs["map"]["made"]) == set(_runs())
     for kind in runs.values():
