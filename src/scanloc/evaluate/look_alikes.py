@@ -40,7 +40,7 @@ import dataclasses
 import itertools
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -311,22 +311,23 @@ def run_look_alikes(
     return out
 
 
-def run_laser(run_dir: Path) -> LaserSpec:
-    """The laser a run was rendered with (its meta.json `sensor`)."""
+def _from_run_meta(run_dir: Path, field: str, build: Callable[[Any], Any]) -> Any:
+    """`build` applied to a field of a run's meta.json; its error names the file and field."""
     meta_path = run_dir / "meta.json"
     try:
-        return laser_spec_from_config(read_json(meta_path).get("sensor"))
+        return build(read_json(meta_path).get(field))
     except ValueError as err:
-        raise ValueError(f"{meta_path}: field 'sensor': {err}") from None
+        raise ValueError(f"{meta_path}: field '{field}': {err}") from None
+
+
+def run_laser(run_dir: Path) -> LaserSpec:
+    """The laser a run was rendered with (its meta.json `sensor`)."""
+    return _from_run_meta(run_dir, "sensor", laser_spec_from_config)
 
 
 def run_noise(run_dir: Path) -> NoiseModel:
     """The range noise a run's scans were rendered with (its meta.json `noise`)."""
-    meta_path = run_dir / "meta.json"
-    try:
-        return noise_from_config(read_json(meta_path).get("noise"))
-    except ValueError as err:
-        raise ValueError(f"{meta_path}: field 'noise': {err}") from None
+    return _from_run_meta(run_dir, "noise", noise_from_config)
 
 
 def map_look_alikes(
