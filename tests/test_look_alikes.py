@@ -10,13 +10,16 @@ import numpy as np
 import pytest
 
 from scanloc.evaluate.look_alikes import (
+    EvidenceModel,
     LookAlikeParams,
     Symmetry,
     beam_evidence,
+    copy_track,
     look_alikes_json,
     map_look_alikes,
     map_symmetries,
     run_look_alikes,
+    stretch_resolution,
 )
 from scanloc.sensor.noise import RangeGaussianNoise
 from scanloc.sensor.raycast import CastMap, cast_exact
@@ -78,6 +81,23 @@ def test_a_difference_in_view_resolves_the_stretch_when_it_comes_into_view() -> 
     pairs = zip(at_truth, at_copy, strict=True)
     same = [np.allclose(a, b, atol=1e-6, equal_nan=True) for a, b in pairs]
     assert all(same[:resolved]) and not same[resolved]
+
+
+@pytest.mark.parametrize("offset", [(0.04, 0.0), (-0.03, 0.05)])
+def test_a_copy_posed_off_its_exact_place_is_optimised_onto_it(offset) -> None:
+    """A symmetry is found on whole cells and a real copy may sit between them: the copy is
+    posed by optimisation within the refine bounds, so a symmetry a few centimetres off the
+    exact copy still keeps the stretch ambiguous. Unrefined, the same copy is told apart at
+    the first step (every beam a few centimetres off)."""
+    grid = _two_rooms()
+    off = Symmetry(0, 6.0 + offset[0], offset[1], 0.0)
+    poses = _turning_in_place()
+    model = EvidenceModel(grid, CastMap.from_grid(grid), SPEC, NOISE, PARAMS)
+    at_truth = cast_exact(model.cast_map, poses, SPEC.beam_angles(), SPEC.range_max)
+    unrefined = copy_track(poses, off, (0.0, 0.0, 0.0))
+    assert model.per_step(unrefined[:1], at_truth[:1])[0] >= PARAMS.llr_threshold_nats
+    stretch = stretch_resolution(model, poses, [off])
+    assert stretch == {"look_alikes": 1, "ambiguous": True, "resolved_at": PARAMS.window}
 
 
 def test_the_evidence_is_the_expected_log_likelihood_ratio_of_the_noise_model() -> None:

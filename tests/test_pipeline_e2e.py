@@ -59,6 +59,11 @@ SMOKE_LOGS = ("intel",)
 # (tests/test_tune.py), a tune map's chain by the stage list (tests/test_config.py) and the
 # committed dvc.lock; each site and stage costs the smoke repro CI time (its budget: 30 min).
 SMOKE_STUDIES = ("amcl_real_recovery",)
+# Two of a map's five scored kidnap seeds (conf/seeds.yaml `runs.map`): the run-clustered
+# intervals need two runs; every localizer runs on each run of each map (a localize stage of
+# 30 to 120 s at the smoke profile, where the barely trained network slows the hybrids), so the
+# three seeds more would cost the smoke repro about 10 minutes of CI's 30 for the same code path.
+SMOKE_MAP_RUNS = ("drive", "kidnap", "kidnap_s1", "tune_kidnap")
 GLOBAL_LOCALIZERS = ("amcl_global", "amcl_recovery", "hybrid")
 REAL_LOG = REPO_ROOT.parent / "shared" / "data" / "carmen" / "intel-corrected.log.gz"
 
@@ -82,11 +87,12 @@ def copy_project(
     logs: tuple[str, ...] = SMOKE_LOGS,
     tune_maps: int = 0,
     studies: tuple[str, ...] = SMOKE_STUDIES,
+    map_runs: tuple[str, ...] = SMOKE_MAP_RUNS,
 ) -> Path:
     """A fresh copy of the project (no data, models or DVC cache) set to `profile`, with
     `extra_maps` added to params.yaml's `maps`, its first `tune_maps` tune maps, only the real
-    `logs` of its `real_logs` (those present beside the repository) and those of the tune
-    `studies` these sites can run."""
+    `logs` of its `real_logs` (those present beside the repository), those of the tune
+    `studies` these sites can run, and only the `map_runs` of a map's runs."""
     for rel in project_files():
         target = dest / rel
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -114,6 +120,13 @@ def copy_project(
         and not dropped_logs & study_sites(dest / "conf" / "study" / f"{study}.yaml")
     ]  # fmt: skip
     (dest / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    seeds_file = dest / "conf" / "seeds.yaml"
+    seeds = yaml.safe_load(seeds_file.read_text())
+    seeds["runs"]["map"] = {
+        part: [run for run in runs if run in map_runs]
+        for part, runs in seeds["runs"]["map"].items()
+    }  # fmt: skip
+    seeds_file.write_text(yaml.safe_dump(seeds, sort_keys=False))
     # as `make repro` does: the sites and jobs of this params.yaml written down for dvc.yaml
     subprocess.run([sys.executable, "-m", "scanloc.sites"], cwd=dest, check=True)
     subprocess.run(["git", "init", "-q"], cwd=dest, check=True)

@@ -127,6 +127,40 @@ def test_a_gain_below_min_gain_keeps_the_earlier_choice(monkeypatch) -> None:
         descent(factors, [0] * 4, [run], [0], "toy", min_gain=1.0)
 
 
+def test_a_gain_inside_the_seeds_noise_keeps_the_earlier_choice(monkeypatch) -> None:
+    """Option b=1 lowers the mean score by 0.01 while the seeds move it by +-0.05 each: a
+    paired gain of well under 2 standard errors, kept only when min_t allows any gain. Option
+    a=1 gains 1.0 on every seed: kept either way."""
+    luck = np.random.default_rng(3).normal(0.0, 0.05, 12)
+
+    def toy(config: Mapping[str, Any], inputs: Any) -> dict[str, float]:
+        seed = config["filter"]["seed"]
+        noisy = luck[seed] if config["b"] else luck[seed] * 0.2
+        return {"score": 2.0 - config["a"] - 0.01 * config["b"] + noisy}
+
+    monkeypatch.setitem(tune.OBJECTIVES, "toy", toy)
+    run = tune.TuneRun("r", None, {"meta": PF, "a": 0, "b": 0})  # type: ignore[arg-type]
+    factors = {"a": [{"a": 1}], "b": [{"b": 1}]}
+    descent = functools.partial(tune.coordinate_descent, canonical=dict)
+    seeds = list(range(12))
+    chosen, trials = descent(factors, [0] * 4, [run], seeds, "toy", min_t=2.0)
+    assert chosen == {"a": 1}
+    assert abs(trials[2]["gain_t"]) < 2.0 and trials[2]["score"] < trials[1]["score"]
+    assert descent(factors, [0] * 4, [run], seeds, "toy", min_t=0.0)[0] == {"a": 1, "b": 1}
+    with pytest.raises(ValueError, match="min_t"):
+        descent(factors, [0] * 4, [run], seeds, "toy", min_t=-1.0)
+
+
+def test_the_paired_t_weighs_the_gain_by_its_spread() -> None:
+    best = {"runs": {"r/s0": {"score": 1.0}, "r/s1": {"score": 1.0}, "r/s2": {"score": 1.0}}}
+    trial = {"runs": {"r/s0": {"score": 0.9}, "r/s1": {"score": 0.8}, "r/s2": {"score": 0.7}}}
+    # gains 0.1, 0.2, 0.3: mean 0.2, standard error 0.1 / sqrt(3)
+    assert tune.paired_gain_t(trial, best) == pytest.approx(0.2 / (0.1 / np.sqrt(3)))
+    assert tune.paired_gain_t(best, best) == 0.0
+    same = {"runs": {k: {"score": 0.5} for k in best["runs"]}}
+    assert tune.paired_gain_t(same, best) == np.inf and tune.paired_gain_t(best, same) == -np.inf
+
+
 def test_a_misspelt_run_entry_is_refused_with_its_study() -> None:
     with pytest.raises(ValueError, match=r"study\.yaml: field 'runs'.*unknown keys \['map_yml'\]"):
         tune.check_run_entry({"run_dir": "r", "map_name": "m", "map_yml": "x"}, "study.yaml")

@@ -171,6 +171,18 @@ def score_trial(
     }
 
 
+def paired_gain_t(trial: Mapping[str, Any], best: Mapping[str, Any]) -> float:
+    """The paired t statistic of a trial's gain over the best so far: the mean over the run x
+    seed pairs of (best's score - the trial's) divided by its standard error. The same gain on
+    every pair (or a single pair) gives +-inf: nothing to weigh it against; no gain gives 0."""
+    gains = np.array([best["runs"][k]["score"] - trial["runs"][k]["score"] for k in best["runs"]])
+    mean = float(gains.mean())
+    spread = float(gains.std(ddof=1)) if len(gains) > 1 else 0.0
+    if spread == 0.0:
+        return math.copysign(math.inf, mean) if mean else 0.0
+    return mean / (spread / math.sqrt(len(gains)))
+
+
 def coordinate_descent(
     factors: Mapping[str, Sequence[Mapping[str, Any]]],
     fitted: Sequence[float],
@@ -180,19 +192,26 @@ def coordinate_descent(
     passes: int = 1,
     min_gain: float = 0.0,
     canonical: Callable[[dict[str, Any]], dict[str, Any]] = resolved,
+    min_t: float = 0.0,
 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """The chosen keys and every trial, in order (module doc): up to `passes` sweeps over the
     factors, stopping after a sweep that keeps nothing (a later factor's choice can change
     which option of an earlier one is best). An option is kept when it lowers the best score
-    so far by more than the fraction `min_gain` of it (0: by anything), so that a margin
-    inside the seeds' noise does not decide a factor. Two trials are the same when their
-    configs are, every default filled in (`canonical`). An option that cannot go with the
-    choices made so far (its localizer refuses the config: a score weighting once
-    verification is off) is recorded as `skipped`, with the reason, and not scored."""
+    so far by more than the fraction `min_gain` of it (0: by anything) and its gain, paired
+    over the runs and seeds, is at least `min_t` standard errors (`paired_gain_t`; 0: any
+    gain), so that a margin inside the seeds' noise does not decide a factor. Two trials are
+    the same when their configs are, every default filled in (`canonical`). An option that
+    cannot go with the choices made so far (its localizer refuses the config: a score
+    weighting once verification is off) is recorded as `skipped`, with the reason, and not
+    scored."""
     if not 0.0 <= min_gain < 1.0:
         raise ValueError(
             f"field 'min_gain' (conf/tune.yaml or the study's): expected a fraction in [0, 1), "
             f"got {min_gain}"
+        )
+    if not min_t >= 0.0:
+        raise ValueError(
+            f"field 'min_t' (conf/tune.yaml or the study's): expected a number >= 0, got {min_t}"
         )
     base = runs[0].localizer
     chosen: dict[str, Any] = {}
@@ -224,10 +243,13 @@ def coordinate_descent(
                     trials.append({"factor": factor, "option": keys, "pass": sweep,
                                    "skipped": str(err), "kept": False})  # fmt: skip
                     continue
-                kept = result["score"] < best["score"] * (1.0 - min_gain)
+                gain_t = paired_gain_t(result, best)
+                kept = result["score"] < best["score"] * (1.0 - min_gain) and gain_t >= min_t
+                significance = {"gain_t": gain_t} if math.isfinite(gain_t) else {}
                 trials.append(
-                    {"factor": factor, "option": keys, "pass": sweep, **result, "kept": kept}
-                )
+                    {"factor": factor, "option": keys, "pass": sweep, **result, **significance,
+                     "kept": kept}
+                )  # fmt: skip
                 if kept:
                     best, chosen, improved = result, chosen | keys, True
         if not improved:
@@ -373,6 +395,7 @@ def main(cfg: DictConfig) -> None:
             study["objective"],
             int(cfg.passes),
             float(study.get("min_gain", cfg.min_gain)),
+            min_t=float(study.get("min_t", cfg.min_t)),
         )
     result = {
         "study": study["name"],
