@@ -10,9 +10,11 @@ from pathlib import Path
 
 import pytest
 import yaml
+from hydra import compose, initialize_config_dir
 
 from scanloc.localize.catalog import raw_config
 from scanloc.localize.show import resolved
+from scanloc.stages._app import to_dict
 from scanloc.stages.tune import expand_runs, tune_maps, with_keys
 
 REPO = Path(__file__).resolve().parents[1]
@@ -39,7 +41,10 @@ def test_a_tune_stages_record_is_its_study_as_written(study: str) -> None:
     tune maps give it now, at the profile of params.yaml: its runs, its seeds, every trial
     numbered. (A record kept from an earlier study, on other runs, fails here; dvc.lock's
     hashes say whether the sources changed since, tests/test_dvc_lock.py.)"""
-    spec = yaml.safe_load((REPO / "conf" / "study" / f"{study}.yaml").read_text())
+    profile = yaml.safe_load((REPO / "params.yaml").read_text())["profile"]
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base=None):
+        cfg = compose("tune", overrides=[f"study={study}", f"profile={profile}"])  # as tune@
+    spec = to_dict(cfg.study)
     record = json.loads((TUNING / f"{study}.json").read_text())
     assert (record["study"], record["localizer"]) == (study, spec["localizer"])
     entries = expand_runs(spec["runs"], tune_maps(REPO / "params.yaml"), study)
@@ -47,12 +52,7 @@ def test_a_tune_stages_record_is_its_study_as_written(study: str) -> None:
         f"{Path(entry['run_dir']).name}/{entry.get('odometry', 'wheel')}" for entry in entries
     ]
     assert record["runs"] == expected_runs, study
-    tune_conf = yaml.safe_load((REPO / "conf" / "tune.yaml").read_text())
-    profile = yaml.safe_load((REPO / "params.yaml").read_text())["profile"]
-    scale_file = REPO / "conf" / "scale" / profile / "tune.yaml"
-    scale = (yaml.safe_load(scale_file.read_text()) or {}) if scale_file.is_file() else {}
-    max_seeds = scale.get("max_seeds", tune_conf["max_seeds"])
-    assert record["seeds"] == spec.get("seeds", tune_conf["seeds"])[:max_seeds], study
+    assert record["seeds"] == list(spec.get("seeds", cfg.seeds))[: cfg.max_seeds], study
     assert [t["trial"] for t in record["trials"]] == list(range(len(record["trials"])))
 
 
